@@ -1,0 +1,21 @@
+//! `bowden bench ...`: each concern contributes its benchmarks here.
+
+use clap::Subcommand;
+
+#[derive(Subcommand)]
+pub enum Command {
+    #[command(flatten)]
+    Compensate(super::compensate::BenchCommand),
+    #[command(flatten)]
+    Runtime(super::runtime::BenchCommand),
+    #[command(flatten)]
+    Learning(super::learning::BenchCommand),
+}
+
+pub fn run(c: Command) -> anyhow::Result<()> {
+    match c {
+        Command::Compensate(c) => super::compensate::bench(c),
+        Command::Runtime(c) => super::runtime::bench(c),
+        Command::Learning(c) => super::learning::bench(c),
+    }
+}

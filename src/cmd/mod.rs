@@ -1,0 +1,13 @@
+//! Subcommands, one module per concern (and per owner).
+
+pub mod bench;
+pub mod camera;
+pub mod compensate;
+pub mod estimator;
+pub mod evaluate;
+pub mod kin;
+pub mod learning;
+pub mod plant;
+pub mod runtime;
+
+// Node glue for `bowden node ...` lives in `crate::nodes`.
