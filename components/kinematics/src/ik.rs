@@ -211,3 +211,70 @@ impl Robot {
         })
     }
 }
+
+/// A solution of [`Robot::ik_position`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IkPositionSolution {
+    /// (q1, q2, q3, q_yaw) in degrees.
+    pub q_deg: [f64; 4],
+    pub iterations: u32,
+    pub residual_pos_mm: f64,
+}
+
+impl Robot {
+    /// Position-only inverse kinematics: (q1, q2, q3, q_yaw) whose end-effector reaches
+    /// `target_mm`, choosing among the redundant solutions (4 unknowns, 3 equations) the one
+    /// closest to `q_ref_deg` (a damped least-norm step, weight `ref_weight` per rad). Used to
+    /// turn task-space paths into joint space: solved along a path with `q_ref` = the
+    /// previous point, it gives a continuous joint path. Refuses solutions outside the limits.
+    pub fn ik_position(
+        &self,
+        target_mm: &nalgebra::Point3<f64>,
+        q_ref_deg: [f64; 4],
+        ref_weight: f64,
+        opts: &IkOptions,
+    ) -> Result<IkPositionSolution, IkError> {
+        if !target_mm.coords.iter().all(|v| v.is_finite()) || q_ref_deg.iter().any(|v| !v.is_finite()) {
+            return Err(IkError::NotFinite);
+        }
+        let deg = |q: &Vector4<f64>| [q[0].to_degrees(), q[1].to_degrees(), q[2].to_degrees(), q[3].to_degrees()];
+        let q_ref = Vector4::from_iterator(q_ref_deg.iter().map(|v| v.to_radians()));
+        let mut q = q_ref;
+        let mut last_err = f64::INFINITY;
+        for it in 0..opts.max_iterations {
+            let (pose, jac) = self.ee_jacobian(&deg(&q));
+            let e = target_mm.coords - pose.translation.vector;
+            last_err = e.norm();
+            if last_err < opts.tol_pos_mm.max(1e-9) {
+                let sol = IkSolution {
+                    q_deg: deg(&q),
+                    iterations: it,
+                    residual_pos_mm: last_err,
+                    residual_rot_rad: 0.0,
+                };
+                let sol = self.check_ik_limits(sol, opts)?;
+                return Ok(IkPositionSolution {
+                    q_deg: sol.q_deg,
+                    iterations: it,
+                    residual_pos_mm: last_err,
+                });
+            }
+            let jv = jac.fixed_view::<3, 4>(0, 0).into_owned();
+            // min |e − Jv·Δ|² + w²|q + Δ − q_ref|²  (Tikhonov toward the reference; w small so
+            // the position is met exactly and only the null space is steered).
+            let w2 = ref_weight * ref_weight;
+            let a = jv.transpose() * jv + Matrix4::identity() * (w2 + 1e-12);
+            let b = jv.transpose() * e - (q - q_ref) * w2;
+            let Some(step) = a.lu().solve(&b) else { break };
+            // Limit the step to keep the linearisation honest far from the solution.
+            let n = step.norm();
+            q += if n > 0.3 { step * (0.3 / n) } else { step };
+        }
+        Err(IkError::NotConverged {
+            iterations: opts.max_iterations,
+            residual_pos_mm: last_err,
+            residual_rot_deg: 0.0,
+            best_q_deg: deg(&q),
+        })
+    }
+}

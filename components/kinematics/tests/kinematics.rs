@@ -301,3 +301,28 @@ fn marker_geometry_follows_the_jaws() {
     let origin = Point3::from((c[0].coords + c[1].coords) * 0.5 + g.l_base_mm());
     assert!(origin.coords.norm() < 1e-12);
 }
+
+#[test]
+fn position_ik_reaches_points_and_follows_the_reference() {
+    let r = robot();
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let opts = IkOptions { max_iterations: 300, ..IkOptions::default() };
+    for _ in 0..200 {
+        let q = random_q(&r, &mut rng);
+        let p = Point3::from(r.fk(&q).ee.translation.vector);
+        let q4 = [q[0], q[1], q[2], 0.5 * (q[3] + q[4])];
+        // Started at the true configuration as reference, it stays there (null space steered).
+        let near = r.ik_position(&p, q4, 1e-3, &opts).expect("reachable");
+        assert!(near.residual_pos_mm < 1e-6);
+        for j in 0..4 {
+            assert!((near.q_deg[j] - q4[j]).abs() < 0.5, "{:?} vs {q4:?}", near.q_deg);
+        }
+        // From zero it still reaches the point (another member of the redundant family).
+        if let Ok(far) = r.ik_position(&p, [0.0; 4], 1e-3, &opts) {
+            let reached = r.ee_pose_reduced(&far.q_deg).translation.vector;
+            assert!((reached - p.coords).norm() < 1e-6);
+        }
+    }
+    let far = Point3::new(400.0, 0.0, 0.0);
+    assert!(r.ik_position(&far, [0.0; 4], 1e-3, &opts).is_err());
+}
