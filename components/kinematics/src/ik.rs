@@ -222,32 +222,36 @@ pub struct IkPositionSolution {
 }
 
 impl Robot {
-    /// Position-only inverse kinematics: (q1, q2, q3, q_yaw) whose end-effector reaches
-    /// `target_mm`, choosing among the redundant solutions (4 unknowns, 3 equations) the one
-    /// closest to `q_ref_deg` (a damped least-norm step, weight `ref_weight` per rad). Used to
-    /// turn task-space paths into joint space: solved along a path with `q_ref` = the
-    /// previous point, it gives a continuous joint path. Refuses solutions outside the limits.
+    /// Position-only inverse kinematics with a given jaw direction: (q1, q2, q3) whose
+    /// end-effector reaches `target_mm` with q_yaw fixed at `q_yaw_deg`, by damped Newton on
+    /// the square 3×3 position system, starting from `q_start_deg`. The manipulator has 4 DOF
+    /// for the tip (q1, q2, q3, q_yaw), so a tip path alone leaves one free; fixing q_yaw along
+    /// the path (a profile) and starting each point from the previous solution gives a
+    /// continuous joint path. Refuses solutions outside the limits.
     pub fn ik_position(
         &self,
         target_mm: &nalgebra::Point3<f64>,
-        q_ref_deg: [f64; 4],
-        ref_weight: f64,
+        q_yaw_deg: f64,
+        q_start_deg: [f64; 3],
         opts: &IkOptions,
     ) -> Result<IkPositionSolution, IkError> {
-        if !target_mm.coords.iter().all(|v| v.is_finite()) || q_ref_deg.iter().any(|v| !v.is_finite()) {
+        if !target_mm.coords.iter().all(|v| v.is_finite())
+            || !q_yaw_deg.is_finite()
+            || q_start_deg.iter().any(|v| !v.is_finite())
+        {
             return Err(IkError::NotFinite);
         }
-        let deg = |q: &Vector4<f64>| [q[0].to_degrees(), q[1].to_degrees(), q[2].to_degrees(), q[3].to_degrees()];
-        let q_ref = Vector4::from_iterator(q_ref_deg.iter().map(|v| v.to_radians()));
-        let mut q = q_ref;
+        let mut q = nalgebra::Vector3::from_iterator(q_start_deg.iter().map(|v| v.to_radians()));
+        let full = |q: &nalgebra::Vector3<f64>| [q[0].to_degrees(), q[1].to_degrees(), q[2].to_degrees(), q_yaw_deg];
         let mut last_err = f64::INFINITY;
+        let mut lambda = 1e-6;
         for it in 0..opts.max_iterations {
-            let (pose, jac) = self.ee_jacobian(&deg(&q));
+            let (pose, jac) = self.ee_jacobian(&full(&q));
             let e = target_mm.coords - pose.translation.vector;
             last_err = e.norm();
             if last_err < opts.tol_pos_mm.max(1e-9) {
                 let sol = IkSolution {
-                    q_deg: deg(&q),
+                    q_deg: full(&q),
                     iterations: it,
                     residual_pos_mm: last_err,
                     residual_rot_rad: 0.0,
@@ -259,22 +263,35 @@ impl Robot {
                     residual_pos_mm: last_err,
                 });
             }
-            let jv = jac.fixed_view::<3, 4>(0, 0).into_owned();
-            // min |e − Jv·Δ|² + w²|q + Δ − q_ref|²  (Tikhonov toward the reference; w small so
-            // the position is met exactly and only the null space is steered).
-            let w2 = ref_weight * ref_weight;
-            let a = jv.transpose() * jv + Matrix4::identity() * (w2 + 1e-12);
-            let b = jv.transpose() * e - (q - q_ref) * w2;
-            let Some(step) = a.lu().solve(&b) else { break };
-            // Limit the step to keep the linearisation honest far from the solution.
-            let n = step.norm();
-            q += if n > 0.3 { step * (0.3 / n) } else { step };
+            let jv = jac.fixed_view::<3, 3>(0, 0).into_owned();
+            let jtj = jv.transpose() * jv;
+            let mut accepted = false;
+            for _ in 0..10 {
+                let Some(step) = (jtj + nalgebra::Matrix3::identity() * lambda).lu().solve(&(jv.transpose() * e)) else {
+                    lambda *= 10.0;
+                    continue;
+                };
+                let n = step.norm();
+                let step = if n > 0.3 { step * (0.3 / n) } else { step };
+                let trial = q + step;
+                let reached = self.ee_pose_reduced(&full(&trial)).translation.vector;
+                if (target_mm.coords - reached).norm() < last_err {
+                    q = trial;
+                    lambda = (lambda * 0.3).max(1e-12);
+                    accepted = true;
+                    break;
+                }
+                lambda *= 10.0;
+            }
+            if !accepted {
+                break;
+            }
         }
         Err(IkError::NotConverged {
             iterations: opts.max_iterations,
             residual_pos_mm: last_err,
             residual_rot_deg: 0.0,
-            best_q_deg: deg(&q),
+            best_q_deg: full(&q),
         })
     }
 }
