@@ -1,0 +1,253 @@
+//! Trajectory-tracking evaluation (paper §V): unseen trajectories run through the full
+//! multi-process pipeline in lockstep (target → compensator → actuator → plant → camera →
+//! estimator) for each controller and repeat, and the paper's Table V (task space) and
+//! Table VI (joint space), measured both by the vision estimate (as the paper did) and by the
+//! simulator's truth, with plots like Fig. 12/13.
+
+pub mod metrics;
+pub mod report;
+
+use bowden_interfaces::JointEstimate;
+use bowden_kinematics::{JointsDeg, N_JOINTS};
+use bowden_runtime::config::{Mode, Overrides, PipelineConfig};
+use bowden_runtime::launch::LaunchOptions;
+use bowden_runtime::session::{LockstepSession, SessionError, SessionOptions, Taps};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+
+/// Controllers compared, by the compensator's mode names.
+pub const CONTROLLERS: [&str; 3] = ["uncalibrated", "paper", "newton"];
+
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error("{path}: {message}")]
+    Config { path: PathBuf, message: String },
+    #[error("{what}: {source}")]
+    Session { what: String, source: SessionError },
+    #[error("{what}: {message}")]
+    Run { what: String, message: String },
+    #[error("{path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+}
+
+/// What one trajectory point produced.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct PointRecord {
+    pub q_desired_deg: JointsDeg,
+    /// The command the compensator sent for it.
+    pub q_cmd_deg: JointsDeg,
+    /// The plant's true configuration at the end of the point (simulation truth).
+    pub q_true_deg: JointsDeg,
+    /// The vision estimate at the end of the point, when the estimator produced a valid one.
+    pub q_est_deg: Option<JointsDeg>,
+    /// The estimator's end-effector pose in the base frame: position mm and quaternion w, x, y, z.
+    pub ee_est: Option<([f64; 3], [f64; 4])>,
+    pub refine_iterations: u32,
+}
+
+/// One run: a trajectory, a controller, a repeat.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunRecord {
+    pub trajectory: String,
+    pub controller: String,
+    pub repeat: u32,
+    pub seed: u64,
+    pub points: Vec<PointRecord>,
+    pub invalid_estimates: usize,
+    pub ticks: u64,
+}
+
+/// How runs are made.
+#[derive(Debug, Clone)]
+pub struct EvalSettings {
+    /// Ticks each trajectory point is held (the paper paused 0.5 s): the last tick is measured.
+    pub settle_ticks: u32,
+    pub repeats: u32,
+    /// Seed of repeat r is `seed0 + r`: the plant's and the camera's noise differ per repeat.
+    pub seed0: u64,
+    /// Working directory for per-controller pipeline files.
+    pub work_dir: PathBuf,
+    /// iceoryx2 prefix stem; each run gets its own prefix.
+    pub prefix_stem: String,
+    pub launch: LaunchOptions,
+}
+
+/// Writes a copy of the pipeline file with the compensator's `mode` set to `controller`.
+pub fn pipeline_for_controller(template: &Path, controller: &str, work_dir: &Path) -> Result<PathBuf, EvalError> {
+    let text = std::fs::read_to_string(template).map_err(|source| EvalError::Io {
+        path: template.to_path_buf(),
+        source,
+    })?;
+    let mut table: toml::Table = toml::from_str(&text).map_err(|e| EvalError::Config {
+        path: template.to_path_buf(),
+        message: e.to_string().replace('\n', " "),
+    })?;
+    let nodes = table
+        .get_mut("node")
+        .and_then(|n| n.as_array_mut())
+        .ok_or_else(|| EvalError::Config {
+            path: template.to_path_buf(),
+            message: "no [[node]] entries".into(),
+        })?;
+    let comp = nodes
+        .iter_mut()
+        .filter_map(|n| n.as_table_mut())
+        .find(|n| n.get("name").and_then(|v| v.as_str()) == Some("compensator"))
+        .ok_or_else(|| EvalError::Config {
+            path: template.to_path_buf(),
+            message: "no node named `compensator`".into(),
+        })?;
+    let params = comp
+        .entry("params")
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+        .as_table_mut()
+        .ok_or_else(|| EvalError::Config {
+            path: template.to_path_buf(),
+            message: "compensator params is not a table".into(),
+        })?;
+    params.insert("mode".into(), toml::Value::String(controller.into()));
+    // The copy lives elsewhere: make the template's relative file paths absolute so they
+    // still name the same files.
+    let base = template
+        .parent()
+        .map(|b| std::fs::canonicalize(if b.as_os_str().is_empty() { Path::new(".") } else { b }))
+        .transpose()
+        .map_err(|source| EvalError::Io {
+            path: template.to_path_buf(),
+            source,
+        })?
+        .unwrap_or_default();
+    absolutize_paths(&mut table, &base);
+    std::fs::create_dir_all(work_dir).map_err(|source| EvalError::Io {
+        path: work_dir.to_path_buf(),
+        source,
+    })?;
+    let out = work_dir.join(format!("pipeline-{controller}.toml"));
+    let text = toml::to_string(&table).map_err(|e| EvalError::Config {
+        path: out.clone(),
+        message: e.to_string(),
+    })?;
+    std::fs::write(&out, text).map_err(|source| EvalError::Io { path: out.clone(), source })?;
+    Ok(out)
+}
+
+/// Keys whose string values are file paths in pipeline files.
+const PATH_KEYS: [&str; 6] = ["robot", "config", "markers", "file", "path", "models_dir"];
+
+fn absolutize_paths(v: &mut toml::Table, base: &Path) {
+    for (k, val) in v.iter_mut() {
+        match val {
+            toml::Value::String(s) if PATH_KEYS.contains(&k.as_str()) && Path::new(s.as_str()).is_relative() => {
+                *s = base.join(s.as_str()).display().to_string();
+            }
+            toml::Value::Table(t) => absolutize_paths(t, base),
+            toml::Value::Array(a) => {
+                for item in a.iter_mut() {
+                    if let toml::Value::Table(t) = item {
+                        absolutize_paths(t, base);
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+}
+
+/// Runs one trajectory through the lockstep pipeline `pipeline_file` and records every point.
+/// `on_point` is called after each point (progress).
+pub fn run_trajectory(
+    pipeline_file: &Path,
+    name: &str,
+    controller: &str,
+    repeat: u32,
+    q_path: &[JointsDeg],
+    settings: &EvalSettings,
+    on_point: &mut dyn FnMut(),
+) -> Result<RunRecord, EvalError> {
+    let seed = settings.seed0 + u64::from(repeat);
+    let what = format!("{name}/{controller}/repeat {repeat}");
+    let ov = Overrides {
+        mode: Some(Mode::Lockstep),
+        prefix: Some(format!("{}{}_{}_{}_", settings.prefix_stem, name, controller, repeat)),
+        seed: Some(seed),
+        ..Default::default()
+    };
+    let cfg = PipelineConfig::load(pipeline_file, &ov).map_err(|e| EvalError::Config {
+        path: pipeline_file.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    let mut opts = SessionOptions::new(settings.launch.clone());
+    opts.taps = Taps {
+        joint_command: true,
+        plant_state: true,
+        joint_estimate: true,
+        ..Default::default()
+    };
+    let session_err = |source| EvalError::Session {
+        what: what.clone(),
+        source,
+    };
+    let mut s = LockstepSession::start(&cfg, opts).map_err(session_err)?;
+    let mut points = Vec::with_capacity(q_path.len());
+    let mut invalid = 0usize;
+    let result = (|| {
+        for q in q_path {
+            let mut last_cmd = None;
+            let mut last_state = None;
+            let mut last_est: Option<JointEstimate> = None;
+            for _ in 0..settings.settle_ticks.max(1) {
+                let out = s.step_with_target(q).map_err(session_err)?;
+                if let Some(e) = out.events.first() {
+                    return Err(EvalError::Run {
+                        what: what.clone(),
+                        message: format!("a node failed at tick {}: {e}", out.tick),
+                    });
+                }
+                last_cmd = out.joint_command.or(last_cmd);
+                last_state = out.plant_state.or(last_state);
+                // Only the estimate of the point's last tick measures the settled robot.
+                last_est = out.joint_estimate;
+            }
+            let (Some(cmd), Some(state)) = (last_cmd, last_state) else {
+                return Err(EvalError::Run {
+                    what: what.clone(),
+                    message: "no command or plant state came back: is the pipeline complete?".into(),
+                });
+            };
+            let take = |a: &[f64; 8]| -> JointsDeg { core::array::from_fn(|j| a[j]) };
+            let (q_est, ee_est) = match last_est {
+                Some(e) if e.quality == JointEstimate::QUALITY_VALID => {
+                    (Some(take(&e.q_phy_deg)), Some((e.ee_pos_base_mm, e.ee_quat_base_wxyz)))
+                }
+                _ => {
+                    invalid += 1;
+                    (None, None)
+                }
+            };
+            points.push(PointRecord {
+                q_desired_deg: *q,
+                q_cmd_deg: take(&cmd.q_cmd_deg),
+                q_true_deg: take(&state.q_phy_deg),
+                q_est_deg: q_est,
+                ee_est,
+                refine_iterations: cmd.iterations,
+            });
+            on_point();
+        }
+        Ok(())
+    })();
+    let ticks = s.ticks_done();
+    let shutdown = s.shutdown();
+    result?;
+    shutdown.map_err(session_err)?;
+    debug_assert!(points.iter().all(|p| p.q_true_deg.len() == N_JOINTS));
+    Ok(RunRecord {
+        trajectory: name.into(),
+        controller: controller.into(),
+        repeat,
+        seed,
+        points,
+        invalid_estimates: invalid,
+        ticks,
+    })
+}

@@ -1,0 +1,132 @@
+//! `bowden evaluate`: tracking of unseen task-space trajectories through the full
+//! multi-process pipeline in lockstep, for each controller and repeat (paper §V, Tables V–VI).
+
+use anyhow::{bail, Context, Result};
+use bowden_evaluation::report::{summarise, write_report};
+use bowden_evaluation::{pipeline_for_controller, run_trajectory, EvalSettings, CONTROLLERS};
+use bowden_kinematics::Robot;
+use bowden_runtime::launch::LaunchOptions;
+use bowden_trajectory::task_space::TrajectorySpec;
+use clap::{Args, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct EvaluateArgs {
+    /// Pipeline to run (lockstep; its compensator's mode is set per controller).
+    #[arg(long, default_value = "configs/evaluate.toml")]
+    pub config: PathBuf,
+    /// Robot description used for FK of the errors and IK of the trajectories.
+    #[arg(long, default_value = "configs/robot.toml")]
+    pub robot: PathBuf,
+    /// Trajectory names, files `<trajectories-dir>/<name>.toml`.
+    #[arg(long, value_delimiter = ',', default_value = "random,circle,zigzag")]
+    pub trajectories: Vec<String>,
+    #[arg(long, default_value = "configs/trajectories")]
+    pub trajectories_dir: PathBuf,
+    /// Controllers: uncalibrated, paper (Algorithm 1), newton.
+    #[arg(long, value_delimiter = ',', default_value = "uncalibrated,paper,newton")]
+    pub controllers: Vec<String>,
+    /// Runs of every (trajectory, controller), each with its own seed (plant and camera noise).
+    #[arg(long, default_value_t = 5)]
+    pub repeats: u32,
+    #[arg(long, default_value_t = 1000)]
+    pub seed: u64,
+    /// Ticks each point is held; the last is measured (5 × 100 ms = the paper's 0.5 s pause).
+    #[arg(long, default_value_t = 5)]
+    pub settle_ticks: u32,
+    /// Use only the first N points of every trajectory (quick checks).
+    #[arg(long)]
+    pub max_points: Option<usize>,
+    /// Directory for report.md, report.json and the plots.
+    #[arg(long, default_value = "out/evaluate")]
+    pub report: PathBuf,
+    /// Also write the summary JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+#[derive(Subcommand)]
+pub enum Command {
+    /// Track unseen trajectories (random, circle, zigzag) with each controller; print Table V/VI.
+    Evaluate(EvaluateArgs),
+}
+
+pub fn run(c: Command) -> Result<()> {
+    match c {
+        Command::Evaluate(a) => evaluate(a),
+    }
+}
+
+fn evaluate(a: EvaluateArgs) -> Result<()> {
+    for c in &a.controllers {
+        if !CONTROLLERS.contains(&c.as_str()) {
+            bail!("--controllers: unknown controller `{c}` (expected {})", CONTROLLERS.join(", "));
+        }
+    }
+    if a.repeats == 0 || a.settle_ticks == 0 {
+        bail!("--repeats and --settle-ticks must be at least 1");
+    }
+    let robot = Robot::load(&a.robot)?;
+    let mut paths = Vec::new();
+    for name in &a.trajectories {
+        let file = a.trajectories_dir.join(format!("{name}.toml"));
+        let spec = TrajectorySpec::load(&file)?;
+        let mut t = spec.to_joint_space(&robot, &file)?;
+        if let Some(n) = a.max_points {
+            t.q_deg.truncate(n.max(1));
+        }
+        paths.push(t);
+    }
+    let work_dir = a.report.join("pipelines");
+    let mut pipelines = Vec::new();
+    for c in &a.controllers {
+        pipelines.push(pipeline_for_controller(&a.config, c, &work_dir)?);
+    }
+    let settings = EvalSettings {
+        settle_ticks: a.settle_ticks,
+        repeats: a.repeats,
+        seed0: a.seed,
+        work_dir,
+        prefix_stem: format!("bev{}_", std::process::id()),
+        launch: LaunchOptions {
+            quiet_children: true,
+            ..LaunchOptions::current_exe().context("locating the bowden executable")?
+        },
+    };
+    let total: u64 = paths.iter().map(|t| t.q_deg.len() as u64).sum::<u64>() * a.controllers.len() as u64 * u64::from(a.repeats);
+    let bar = ProgressBar::new(total);
+    bar.set_style(
+        ProgressStyle::with_template("{msg:32} [{bar:30}] {pos}/{len} points  {per_sec}  eta {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    let mut runs = Vec::new();
+    for t in &paths {
+        for (c, pipeline) in a.controllers.iter().zip(&pipelines) {
+            for r in 0..a.repeats {
+                bar.set_message(format!("{} / {c} / #{r}", t.name));
+                let run = run_trajectory(pipeline, &t.name, c, r, &t.q_deg, &settings, &mut || bar.inc(1))?;
+                runs.push(run);
+            }
+        }
+    }
+    bar.finish_and_clear();
+    let summary = summarise(&robot, &runs);
+    let header = format!(
+        "{} trajectories × {} controllers × {} repeats; points held {} ticks; pipeline {}; robot {}.",
+        a.trajectories.len(),
+        a.controllers.len(),
+        a.repeats,
+        a.settle_ticks,
+        a.config.display(),
+        a.robot.display()
+    );
+    let files = write_report(&robot, &runs, &summary, &header, &a.report)?;
+    if let Some(j) = &a.json {
+        std::fs::write(j, serde_json::to_string_pretty(&summary)?).with_context(|| format!("{}", j.display()))?;
+    }
+    print!("{}", bowden_evaluation::report::markdown(&summary, &header));
+    eprintln!("report: {}", files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>().join(", "));
+    Ok(())
+}
