@@ -58,6 +58,15 @@ pub fn run(c: Command) -> Result<()> {
     }
 }
 
+/// Home (all joints zero) to the trajectory's first point, at the dataset's step (eq. 16),
+/// without the first point itself.
+fn approach_path(q: &[bowden_kinematics::JointsDeg]) -> Vec<bowden_kinematics::JointsDeg> {
+    let Some(first) = q.first() else { return Vec::new() };
+    let mut path = bowden_trajectory::interpolate_eq16(&[[0.0; 5], *first]);
+    path.retain(|p| p != first);
+    path
+}
+
 fn evaluate(a: EvaluateArgs) -> Result<()> {
     for c in &a.controllers {
         if !CONTROLLERS.contains(&c.as_str()) {
@@ -106,7 +115,8 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
         for (c, pipeline) in a.controllers.iter().zip(&pipelines) {
             for r in 0..a.repeats {
                 bar.set_message(format!("{} / {c} / #{r}", t.name));
-                let run = run_trajectory(pipeline, &t.name, c, r, &t.q_deg, &settings, &mut || bar.inc(1))?;
+                let approach = approach_path(&t.q_deg);
+                let run = run_trajectory(pipeline, &t.name, c, r, &approach, &t.q_deg, &settings, &mut || bar.inc(1))?;
                 runs.push(run);
             }
         }

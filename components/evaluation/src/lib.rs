@@ -154,12 +154,15 @@ fn absolutize_paths(v: &mut toml::Table, base: &Path) {
 }
 
 /// Runs one trajectory through the lockstep pipeline `pipeline_file` and records every point.
-/// `on_point` is called after each point (progress).
+/// The robot first moves along `approach` (home → the trajectory's start at the model step,
+/// held like any point, not measured), so the first measured point does not start with a jump.
+/// `on_point` is called after each measured point (progress).
 pub fn run_trajectory(
     pipeline_file: &Path,
     name: &str,
     controller: &str,
     repeat: u32,
+    approach: &[JointsDeg],
     q_path: &[JointsDeg],
     settings: &EvalSettings,
     on_point: &mut dyn FnMut(),
@@ -191,6 +194,17 @@ pub fn run_trajectory(
     let mut points = Vec::with_capacity(q_path.len());
     let mut invalid = 0usize;
     let result = (|| {
+        for q in approach {
+            for _ in 0..settings.settle_ticks.max(1) {
+                let out = s.step_with_target(q).map_err(session_err)?;
+                if let Some(e) = out.events.first() {
+                    return Err(EvalError::Run {
+                        what: what.clone(),
+                        message: format!("a node failed at tick {} (approach): {e}", out.tick),
+                    });
+                }
+            }
+        }
         for q in q_path {
             let mut last_cmd = None;
             let mut last_state = None;

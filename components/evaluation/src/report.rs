@@ -151,8 +151,8 @@ fn table_v(s: &Summary, by_truth: bool) -> String {
     // Reduction of every controller against the uncalibrated one.
     if s.controllers.iter().any(|c| c == "uncalibrated") {
         for (name, pick) in [
-            ("Position reduction vs uncalibrated", 0usize),
-            ("Orientation reduction vs uncalibrated", 1usize),
+            ("Position error reduction vs uncalibrated (+ = better)", 0usize),
+            ("Orientation error reduction vs uncalibrated (+ = better)", 1usize),
         ] {
             let _ = write!(out, "| {name} |");
             for (t, c) in &cols {
@@ -167,7 +167,7 @@ fn table_v(s: &Summary, by_truth: bool) -> String {
                     })
                 };
                 let txt = match (get("uncalibrated"), get(c)) {
-                    (Some(u), Some(v)) if c != "uncalibrated" => format!("{:+.1} %", -reduction_pct(u, v)),
+                    (Some(u), Some(v)) if c != "uncalibrated" => format!("{:+.1} %", reduction_pct(u, v)),
                     _ => String::new(),
                 };
                 let _ = write!(out, " {txt} |");
