@@ -31,6 +31,8 @@ enum Command {
     #[command(flatten)]
     Learning(cmd::learning::Command),
     #[command(flatten)]
+    Collect(cmd::collect::Command),
+    #[command(flatten)]
     Evaluate(cmd::evaluate::Command),
     /// Latency and throughput benchmarks printing percentiles.
     Bench {
@@ -49,6 +51,7 @@ fn main() -> std::process::ExitCode {
         Command::Compensate(c) => cmd::compensate::run(c),
         Command::Runtime(c) => cmd::runtime::run(c),
         Command::Learning(c) => cmd::learning::run(c),
+        Command::Collect(c) => cmd::collect::run(c),
         Command::Evaluate(c) => cmd::evaluate::run(c),
         Command::Bench { what } => cmd::bench::run(what),
     };

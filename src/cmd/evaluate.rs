@@ -3,7 +3,7 @@
 
 use anyhow::{bail, Context, Result};
 use bowden_evaluation::report::{summarise, write_report};
-use bowden_evaluation::{pipeline_for_controller, run_trajectory, EvalSettings, CONTROLLERS};
+use bowden_evaluation::{pipeline_variant, run_trajectory, EvalSettings, CONTROLLERS};
 use bowden_kinematics::Robot;
 use bowden_runtime::launch::LaunchOptions;
 use bowden_trajectory::task_space::TrajectorySpec;
@@ -38,6 +38,12 @@ pub struct EvaluateArgs {
     /// Use only the first N points of every trajectory (quick checks).
     #[arg(long)]
     pub max_points: Option<usize>,
+    /// Plant file for the simulated robot (a second robot is a second file).
+    #[arg(long)]
+    pub plant: Option<PathBuf>,
+    /// Compensator config (models, refinement settings) replacing the pipeline's.
+    #[arg(long)]
+    pub controller_config: Option<PathBuf>,
     /// Directory for report.md, report.json and the plots.
     #[arg(long, default_value = "out/evaluate")]
     pub report: PathBuf,
@@ -90,7 +96,14 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
     let work_dir = a.report.join("pipelines");
     let mut pipelines = Vec::new();
     for c in &a.controllers {
-        pipelines.push(pipeline_for_controller(&a.config, c, &work_dir)?);
+        let mut set = vec![("compensator", "mode", c.clone())];
+        for (node, file) in [("plant", &a.plant), ("compensator", &a.controller_config)] {
+            if let Some(f) = file {
+                let abs = std::fs::canonicalize(f).with_context(|| format!("{}", f.display()))?;
+                set.push((node, "config", abs.display().to_string()));
+            }
+        }
+        pipelines.push(pipeline_variant(&a.config, &set, &work_dir.join(format!("pipeline-{c}.toml")))?);
     }
     let settings = EvalSettings {
         settle_ticks: a.settle_ticks,

@@ -2,6 +2,7 @@
 
 pub mod bench;
 pub mod camera;
+pub mod collect;
 pub mod compensate;
 pub mod estimator;
 pub mod evaluate;

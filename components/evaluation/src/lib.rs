@@ -74,6 +74,17 @@ pub struct EvalSettings {
 
 /// Writes a copy of the pipeline file with the compensator's `mode` set to `controller`.
 pub fn pipeline_for_controller(template: &Path, controller: &str, work_dir: &Path) -> Result<PathBuf, EvalError> {
+    pipeline_variant(
+        template,
+        &[("compensator", "mode", controller.to_string())],
+        &work_dir.join(format!("pipeline-{controller}.toml")),
+    )
+}
+
+/// Writes a copy of the pipeline file `template` to `out` with node parameters replaced:
+/// each `(node name, parameter, value)` sets `[node.params] parameter = value` of that node.
+/// Relative file paths of the template are made absolute so the copy names the same files.
+pub fn pipeline_variant(template: &Path, set: &[(&str, &str, String)], out: &Path) -> Result<PathBuf, EvalError> {
     let text = std::fs::read_to_string(template).map_err(|source| EvalError::Io {
         path: template.to_path_buf(),
         source,
@@ -89,23 +100,25 @@ pub fn pipeline_for_controller(template: &Path, controller: &str, work_dir: &Pat
             path: template.to_path_buf(),
             message: "no [[node]] entries".into(),
         })?;
-    let comp = nodes
-        .iter_mut()
-        .filter_map(|n| n.as_table_mut())
-        .find(|n| n.get("name").and_then(|v| v.as_str()) == Some("compensator"))
-        .ok_or_else(|| EvalError::Config {
-            path: template.to_path_buf(),
-            message: "no node named `compensator`".into(),
-        })?;
-    let params = comp
-        .entry("params")
-        .or_insert_with(|| toml::Value::Table(toml::Table::new()))
-        .as_table_mut()
-        .ok_or_else(|| EvalError::Config {
-            path: template.to_path_buf(),
-            message: "compensator params is not a table".into(),
-        })?;
-    params.insert("mode".into(), toml::Value::String(controller.into()));
+    for (node, key, value) in set {
+        let entry = nodes
+            .iter_mut()
+            .filter_map(|n| n.as_table_mut())
+            .find(|n| n.get("name").and_then(|v| v.as_str()) == Some(node))
+            .ok_or_else(|| EvalError::Config {
+                path: template.to_path_buf(),
+                message: format!("no node named `{node}`"),
+            })?;
+        let params = entry
+            .entry("params")
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+            .as_table_mut()
+            .ok_or_else(|| EvalError::Config {
+                path: template.to_path_buf(),
+                message: format!("{node}: params is not a table"),
+            })?;
+        params.insert((*key).to_string(), toml::Value::String(value.clone()));
+    }
     // The copy lives elsewhere: make the template's relative file paths absolute so they
     // still name the same files.
     let base = template
@@ -118,17 +131,21 @@ pub fn pipeline_for_controller(template: &Path, controller: &str, work_dir: &Pat
         })?
         .unwrap_or_default();
     absolutize_paths(&mut table, &base);
-    std::fs::create_dir_all(work_dir).map_err(|source| EvalError::Io {
-        path: work_dir.to_path_buf(),
-        source,
-    })?;
-    let out = work_dir.join(format!("pipeline-{controller}.toml"));
+    if let Some(dir) = out.parent() {
+        std::fs::create_dir_all(dir).map_err(|source| EvalError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+    }
     let text = toml::to_string(&table).map_err(|e| EvalError::Config {
-        path: out.clone(),
+        path: out.to_path_buf(),
         message: e.to_string(),
     })?;
-    std::fs::write(&out, text).map_err(|source| EvalError::Io { path: out.clone(), source })?;
-    Ok(out)
+    std::fs::write(out, text).map_err(|source| EvalError::Io {
+        path: out.to_path_buf(),
+        source,
+    })?;
+    Ok(out.to_path_buf())
 }
 
 /// Keys whose string values are file paths in pipeline files.

@@ -1,0 +1,162 @@
+//! `bowden collect`: the paper's dataset (§IV-B, eq. 16) recorded through the vision loop:
+//! the eq. (16) commands sent uncalibrated through actuator → plant → camera → estimator in
+//! the lockstep multi-process pipeline, each held for the paper's 0.5 s pause and measured by
+//! the estimator on its last tick.
+
+use anyhow::{bail, Context, Result};
+use bowden_evaluation::pipeline_variant;
+use bowden_interfaces::JointEstimate;
+use bowden_kinematics::{Robot, N_JOINTS};
+use bowden_learning::dataset::{fnv1a64_hex, Dataset};
+use bowden_runtime::config::{Mode, Overrides, PipelineConfig};
+use bowden_runtime::launch::LaunchOptions;
+use bowden_runtime::session::{LockstepSession, SessionOptions, Taps};
+use clap::{Args, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct CollectArgs {
+    /// Pipeline to run (lockstep; the compensator is forced to `uncalibrated`).
+    #[arg(long, default_value = "configs/evaluate.toml")]
+    pub config: PathBuf,
+    /// Robot description (joint limits of the random configurations).
+    #[arg(long, default_value = "configs/robot.toml")]
+    pub robot: PathBuf,
+    /// Plant file for the simulated robot (a second robot is a second file).
+    #[arg(long)]
+    pub plant: Option<PathBuf>,
+    /// Random configurations of eq. (16) (the paper: 1,802 → 30,707 commands).
+    #[arg(long, default_value_t = 1802)]
+    pub samples: usize,
+    #[arg(long, default_value_t = 2024)]
+    pub seed: u64,
+    /// Ticks each command is held; the last is measured (5 × 100 ms = the paper's 0.5 s).
+    #[arg(long, default_value_t = 5)]
+    pub settle_ticks: u32,
+    /// Output directory: dataset.csv + manifest.json.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+#[derive(Subcommand)]
+pub enum Command {
+    /// Record the eq. (16) dataset through the vision loop (CSV + JSON manifest).
+    Collect(CollectArgs),
+}
+
+pub fn run(c: Command) -> Result<()> {
+    match c {
+        Command::Collect(a) => collect(a),
+    }
+}
+
+fn collect(a: CollectArgs) -> Result<()> {
+    if a.samples < 2 {
+        bail!("--samples: need at least 2 random configurations, got {}", a.samples);
+    }
+    if a.settle_ticks == 0 {
+        bail!("--settle-ticks must be at least 1");
+    }
+    let robot = Robot::load(&a.robot)?;
+    let commands = bowden_trajectory::dataset_commands(&robot, a.samples, a.seed);
+    let work = a.out.join("pipeline");
+    let mut set = vec![("compensator", "mode", "uncalibrated".to_string())];
+    if let Some(p) = &a.plant {
+        let abs = std::fs::canonicalize(p).with_context(|| format!("--plant {}", p.display()))?;
+        set.push(("plant", "config", abs.display().to_string()));
+    }
+    let pipeline = pipeline_variant(&a.config, &set, &work.join("collect.toml"))?;
+    let ov = Overrides {
+        mode: Some(Mode::Lockstep),
+        prefix: Some(format!("bcol{}_", std::process::id())),
+        seed: Some(a.seed),
+        ..Default::default()
+    };
+    let cfg = PipelineConfig::load(&pipeline, &ov)?;
+    let mut opts = SessionOptions::new(LaunchOptions {
+        quiet_children: true,
+        ..LaunchOptions::current_exe().context("locating the bowden executable")?
+    });
+    opts.taps = Taps {
+        plant_state: true,
+        joint_estimate: true,
+        ..Default::default()
+    };
+    let mut session = LockstepSession::start(&cfg, opts)?;
+    let bar = ProgressBar::new(commands.len() as u64);
+    bar.set_style(
+        ProgressStyle::with_template("collect [{bar:40}] {pos}/{len} commands  {per_sec}  eta {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    let n = commands.len();
+    let mut data = Dataset {
+        joints: N_JOINTS,
+        t_ns: Vec::with_capacity(n),
+        q_cmd_deg: Vec::with_capacity(n * N_JOINTS),
+        q_phy_deg: Vec::with_capacity(n * N_JOINTS),
+        q_true_deg: Some(Vec::with_capacity(n * N_JOINTS)),
+        valid: Vec::with_capacity(n),
+    };
+    let run = (|| -> Result<()> {
+        for (i, q) in commands.iter().enumerate() {
+            let mut state = None;
+            let mut estimate = None;
+            let mut t_ns = 0;
+            for _ in 0..a.settle_ticks {
+                let out = session.step_with_target(q).with_context(|| format!("command {i}"))?;
+                if let Some(e) = out.events.first() {
+                    bail!("command {i}: a node failed at tick {}: {e}", out.tick);
+                }
+                state = out.plant_state.or(state);
+                estimate = out.joint_estimate;
+                t_ns = out.t_sim_ns;
+            }
+            let Some(state) = state else {
+                bail!("command {i}: no plant state came back (is the plant in the pipeline?)");
+            };
+            let est = estimate.filter(|e| e.quality == JointEstimate::QUALITY_VALID);
+            data.t_ns.push(t_ns as i64);
+            data.q_cmd_deg.extend_from_slice(q);
+            match est {
+                Some(e) => data.q_phy_deg.extend_from_slice(&e.q_phy_deg[..N_JOINTS]),
+                // Kept and flagged, never dropped: the sequence models need the whole history.
+                None => data.q_phy_deg.extend_from_slice(&[f64::NAN; N_JOINTS]),
+            }
+            data.valid.push(est.is_some());
+            if let Some(t) = data.q_true_deg.as_mut() {
+                t.extend_from_slice(&state.q_phy_deg[..N_JOINTS]);
+            }
+            bar.inc(1);
+        }
+        Ok(())
+    })();
+    bar.finish_and_clear();
+    let report = session.shutdown();
+    run?;
+    report?;
+    let config_text = std::fs::read_to_string(&pipeline).unwrap_or_default()
+        + &std::fs::read_to_string(&a.robot).unwrap_or_default()
+        + &a.plant.as_ref().and_then(|p| std::fs::read_to_string(p).ok()).unwrap_or_default();
+    let provenance = serde_json::json!({
+        "command": std::env::args().collect::<Vec<_>>(),
+        "pipeline": pipeline.display().to_string(),
+        "robot": a.robot.display().to_string(),
+        "plant": a.plant.as_ref().map(|p| p.display().to_string()),
+        "random_configurations": a.samples,
+        "settle_ticks": a.settle_ticks,
+        "tick_ns": cfg.period_ns(),
+        "step_deg": bowden_trajectory::DATASET_STEP_DEG,
+    });
+    let manifest = data.write_dir(&a.out, "collect", Some(a.seed), Some(fnv1a64_hex(config_text.as_bytes())), provenance)?;
+    println!(
+        "{}: {} commands from {} random configurations, {} with a valid vision estimate ({:.2} %)",
+        a.out.display(),
+        manifest.samples,
+        a.samples,
+        manifest.valid_samples,
+        100.0 * manifest.valid_samples as f64 / manifest.samples.max(1) as f64
+    );
+    Ok(())
+}
