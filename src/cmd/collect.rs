@@ -4,7 +4,7 @@
 //! the estimator on its last tick.
 
 use anyhow::{bail, Context, Result};
-use bowden_evaluation::pipeline_variant;
+use bowden_evaluation::{camera_fps_for, pipeline_variant};
 use bowden_interfaces::JointEstimate;
 use bowden_kinematics::{Robot, N_JOINTS};
 use bowden_learning::dataset::{fnv1a64_hex, Dataset};
@@ -61,10 +61,14 @@ fn collect(a: CollectArgs) -> Result<()> {
     let robot = Robot::load(&a.robot)?;
     let commands = bowden_trajectory::dataset_commands(&robot, a.samples, a.seed);
     let work = a.out.join("pipeline");
-    let mut set = vec![("compensator", "mode", "uncalibrated".to_string())];
+    let tick_ns = PipelineConfig::load(&a.config, &Overrides::default())?.period_ns();
+    let mut set = vec![
+        ("compensator", "mode", toml::Value::String("uncalibrated".into())),
+        ("camera", "fps", toml::Value::Float(camera_fps_for(a.settle_ticks, tick_ns))),
+    ];
     if let Some(p) = &a.plant {
         let abs = std::fs::canonicalize(p).with_context(|| format!("--plant {}", p.display()))?;
-        set.push(("plant", "config", abs.display().to_string()));
+        set.push(("plant", "config", toml::Value::String(abs.display().to_string())));
     }
     let pipeline = pipeline_variant(&a.config, &set, &work.join("collect.toml"))?;
     let ov = Overrides {
@@ -100,6 +104,8 @@ fn collect(a: CollectArgs) -> Result<()> {
         valid: Vec::with_capacity(n),
     };
     let run = (|| -> Result<()> {
+        // One warm-up tick at home puts the one-frame-per-command grid on each command's last tick.
+        session.step_with_target(&[0.0; N_JOINTS]).context("warm-up tick")?;
         for (i, q) in commands.iter().enumerate() {
             let mut state = None;
             let mut estimate = None;
@@ -116,6 +122,9 @@ fn collect(a: CollectArgs) -> Result<()> {
             let Some(state) = state else {
                 bail!("command {i}: no plant state came back (is the plant in the pipeline?)");
             };
+            if i == 0 && estimate.is_none() {
+                bail!("no camera frame on the last tick of the first command: the camera's frame grid is off");
+            }
             let est = estimate.filter(|e| e.quality == JointEstimate::QUALITY_VALID);
             data.t_ns.push(t_ns as i64);
             data.q_cmd_deg.extend_from_slice(q);

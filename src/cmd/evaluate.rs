@@ -3,7 +3,8 @@
 
 use anyhow::{bail, Context, Result};
 use bowden_evaluation::report::{summarise, write_report};
-use bowden_evaluation::{pipeline_variant, run_trajectory, EvalSettings, CONTROLLERS};
+use bowden_evaluation::{camera_fps_for, pipeline_variant, run_trajectory, EvalSettings, CONTROLLERS};
+use bowden_runtime::config::{Overrides, PipelineConfig};
 use bowden_kinematics::Robot;
 use bowden_runtime::launch::LaunchOptions;
 use bowden_trajectory::task_space::TrajectorySpec;
@@ -94,13 +95,18 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
         paths.push(t);
     }
     let work_dir = a.report.join("pipelines");
+    let tick_ns = PipelineConfig::load(&a.config, &Overrides::default())?.period_ns();
+    let fps = camera_fps_for(a.settle_ticks, tick_ns);
     let mut pipelines = Vec::new();
     for c in &a.controllers {
-        let mut set = vec![("compensator", "mode", c.clone())];
+        let mut set = vec![
+            ("compensator", "mode", toml::Value::String(c.clone())),
+            ("camera", "fps", toml::Value::Float(fps)),
+        ];
         for (node, file) in [("plant", &a.plant), ("compensator", &a.controller_config)] {
             if let Some(f) = file {
                 let abs = std::fs::canonicalize(f).with_context(|| format!("{}", f.display()))?;
-                set.push((node, "config", abs.display().to_string()));
+                set.push((node, "config", toml::Value::String(abs.display().to_string())));
             }
         }
         pipelines.push(pipeline_variant(&a.config, &set, &work_dir.join(format!("pipeline-{c}.toml")))?);

@@ -76,7 +76,7 @@ pub struct EvalSettings {
 pub fn pipeline_for_controller(template: &Path, controller: &str, work_dir: &Path) -> Result<PathBuf, EvalError> {
     pipeline_variant(
         template,
-        &[("compensator", "mode", controller.to_string())],
+        &[("compensator", "mode", toml::Value::String(controller.to_string()))],
         &work_dir.join(format!("pipeline-{controller}.toml")),
     )
 }
@@ -84,7 +84,7 @@ pub fn pipeline_for_controller(template: &Path, controller: &str, work_dir: &Pat
 /// Writes a copy of the pipeline file `template` to `out` with node parameters replaced:
 /// each `(node name, parameter, value)` sets `[node.params] parameter = value` of that node.
 /// Relative file paths of the template are made absolute so the copy names the same files.
-pub fn pipeline_variant(template: &Path, set: &[(&str, &str, String)], out: &Path) -> Result<PathBuf, EvalError> {
+pub fn pipeline_variant(template: &Path, set: &[(&str, &str, toml::Value)], out: &Path) -> Result<PathBuf, EvalError> {
     let text = std::fs::read_to_string(template).map_err(|source| EvalError::Io {
         path: template.to_path_buf(),
         source,
@@ -117,7 +117,7 @@ pub fn pipeline_variant(template: &Path, set: &[(&str, &str, String)], out: &Pat
                 path: template.to_path_buf(),
                 message: format!("{node}: params is not a table"),
             })?;
-        params.insert((*key).to_string(), toml::Value::String(value.clone()));
+        params.insert((*key).to_string(), value.clone());
     }
     // The copy lives elsewhere: make the template's relative file paths absolute so they
     // still name the same files.
@@ -146,6 +146,12 @@ pub fn pipeline_variant(template: &Path, set: &[(&str, &str, String)], out: &Pat
         source,
     })?;
     Ok(out.to_path_buf())
+}
+
+/// The camera frame rate that gives one frame per held point (the paper measured each
+/// command once, after its 0.5 s pause): 1 / (settle ticks × tick).
+pub fn camera_fps_for(settle_ticks: u32, tick_ns: u64) -> f64 {
+    1e9 / (f64::from(settle_ticks.max(1)) * tick_ns.max(1) as f64)
 }
 
 /// Keys whose string values are file paths in pipeline files.
@@ -211,6 +217,9 @@ pub fn run_trajectory(
     let mut points = Vec::with_capacity(q_path.len());
     let mut invalid = 0usize;
     let result = (|| {
+        // One warm-up tick at home puts the camera's frame grid (one frame per held point,
+        // see `camera_fps_for`) on the last tick of every point.
+        s.step_with_target(&[0.0; N_JOINTS]).map_err(session_err)?;
         for q in approach {
             for _ in 0..settings.settle_ticks.max(1) {
                 let out = s.step_with_target(q).map_err(session_err)?;
@@ -245,6 +254,14 @@ pub fn run_trajectory(
                     message: "no command or plant state came back: is the pipeline complete?".into(),
                 });
             };
+            if points.is_empty() && last_est.is_none() {
+                return Err(EvalError::Run {
+                    what: what.clone(),
+                    message: "no camera frame on the last tick of the first point: the camera's fps must be \
+                              1 / (settle ticks × tick) (see camera_fps_for)"
+                        .into(),
+                });
+            }
             let take = |a: &[f64; 8]| -> JointsDeg { core::array::from_fn(|j| a[j]) };
             let (q_est, ee_est) = match last_est {
                 Some(e) if e.quality == JointEstimate::QUALITY_VALID => {
