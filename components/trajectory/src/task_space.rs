@@ -85,6 +85,12 @@ pub struct TrajectorySpec {
     /// Spacing of the dense task-space samples before joint-space resampling, mm.
     #[serde(default = "default_dense_step")]
     pub dense_step_mm: f64,
+    /// Draw the path on the surface a single C-shaped bend sweeps: each point keeps its
+    /// distance r from the manipulator's axis and its axial coordinate becomes the tip's x for a
+    /// C-bend reaching r. A continuum manipulator bends, it hardly shortens: off that surface a
+    /// point needs an S-shaped bend, with large opposite angles for a fraction of a millimetre.
+    #[serde(default)]
+    pub on_bend_surface: bool,
 }
 
 fn default_dense_step() -> f64 {
@@ -150,7 +156,9 @@ impl TrajectorySpec {
                     return Err(bad("circle: center_mm and a non-zero normal are required".into()));
                 }
                 if !(radius_mm.is_finite() && *radius_mm > 0.0 && laps.is_finite() && *laps > 0.0) {
-                    return Err(bad(format!("circle: radius_mm {radius_mm} and laps {laps} must be positive")));
+                    return Err(bad(format!(
+                        "circle: radius_mm {radius_mm} and laps {laps} must be positive"
+                    )));
                 }
             }
             Shape::Zigzag {
@@ -162,7 +170,9 @@ impl TrajectorySpec {
                 teeth,
             } => {
                 if !finite3(start_mm) || Vector3::from(*along).norm() < 1e-9 || Vector3::from(*across).norm() < 1e-9 {
-                    return Err(bad("zigzag: start_mm and non-zero along/across directions are required".into()));
+                    return Err(bad(
+                        "zigzag: start_mm and non-zero along/across directions are required".into(),
+                    ));
                 }
                 if !(*length_mm > 0.0 && *amplitude_mm > 0.0 && *teeth > 0) {
                     return Err(bad("zigzag: length_mm, amplitude_mm and teeth must be positive".into()));
@@ -175,7 +185,10 @@ impl TrajectorySpec {
             }
         }
         if !(spec.dense_step_mm > 0.0 && spec.dense_step_mm.is_finite()) {
-            return Err(bad(format!("dense_step_mm must be positive, got {}", spec.dense_step_mm)));
+            return Err(bad(format!(
+                "dense_step_mm must be positive, got {}",
+                spec.dense_step_mm
+            )));
         }
         for (name, p) in [("jaw_opening", spec.jaw_opening), ("q_yaw", spec.q_yaw)] {
             if ![p.mean_deg, p.amplitude_deg, p.cycles].iter().all(|v| v.is_finite()) {
@@ -234,7 +247,9 @@ impl TrajectorySpec {
                 let mut rng = ChaCha8Rng::seed_from_u64(*seed);
                 let lim = &robot.config.limits;
                 let wps: Vec<[f64; 3]> = (0..*waypoints)
-                    .map(|_| core::array::from_fn(|j| rng.random_range(lim.q_min_deg[j] * 0.5..=lim.q_max_deg[j] * 0.5)))
+                    .map(|_| {
+                        core::array::from_fn(|j| rng.random_range(lim.q_min_deg[j] * 0.3..=lim.q_max_deg[j] * 0.3))
+                    })
                     .collect();
                 let tip = |q: &[f64; 3], s: f64| {
                     let y = self.q_yaw.at(s);
@@ -272,30 +287,52 @@ impl TrajectorySpec {
         self.to_joint_space_with_step(robot, path, DATASET_STEP_DEG)
     }
 
-    pub fn to_joint_space_with_step(&self, robot: &Robot, path: &Path, step_deg: f64) -> Result<JointTrajectory, TrajectoryError> {
-        let dense = self.dense_positions(robot);
+    pub fn to_joint_space_with_step(
+        &self,
+        robot: &Robot,
+        path: &Path,
+        step_deg: f64,
+    ) -> Result<JointTrajectory, TrajectoryError> {
+        let mut dense = self.dense_positions(robot);
+        if self.on_bend_surface {
+            for p in dense.iter_mut() {
+                let r = (p.y * p.y + p.z * p.z).sqrt();
+                if let Some(x) = bend_surface_x(robot, r) {
+                    p.x = x;
+                }
+            }
+        }
         let opts = IkOptions {
             max_iterations: 300,
-            tol_pos_mm: 1e-7,
+            // The desired pose is FK of the joint path, so a residual here only moves the path by
+            // micrometres; near the straight pose the position system is singular (no shortening).
+            tol_pos_mm: 1e-2,
             ..IkOptions::default()
         };
         let last = (dense.len() - 1).max(1) as f64;
         let mut joints: Vec<JointsDeg> = Vec::with_capacity(dense.len());
-        let mut q_prev = first_point_start(robot, &dense[0], self.q_yaw.at(0.0), &opts);
         for (i, p) in dense.iter().enumerate() {
             let s = i as f64 / last;
             // q_yaw from its profile; start from the previous point (continuity).
-            let sol = robot.ik_position(p, self.q_yaw.at(s), q_prev, &opts).map_err(|e| TrajectoryError::Unreachable {
-                path: path.to_path_buf(),
-                index: i,
-                x: p.x,
-                y: p.y,
-                z: p.z,
-                reason: e.to_string(),
-            })?;
-            q_prev = [sol.q_deg[0], sol.q_deg[1], sol.q_deg[2]];
+            let sol =
+                robot
+                    .ik_position(p, self.q_yaw.at(s), c_bend_guess(robot, p), &opts)
+                    .map_err(|e| TrajectoryError::Unreachable {
+                        path: path.to_path_buf(),
+                        index: i,
+                        x: p.x,
+                        y: p.y,
+                        z: p.z,
+                        reason: e.to_string(),
+                    })?;
             let half = 0.5 * self.jaw_opening.at(s);
-            let q = [sol.q_deg[0], sol.q_deg[1], sol.q_deg[2], sol.q_deg[3] - half, sol.q_deg[3] + half];
+            let q = [
+                sol.q_deg[0],
+                sol.q_deg[1],
+                sol.q_deg[2],
+                sol.q_deg[3] - half,
+                sol.q_deg[3] + half,
+            ];
             robot.check_limits(&q).map_err(|e| TrajectoryError::Unreachable {
                 path: path.to_path_buf(),
                 index: i,
@@ -313,25 +350,45 @@ impl TrajectorySpec {
     }
 }
 
-/// Start of the path: among the solutions from a small grid of starts, the one with the
-/// smallest joint norm (the least bent manipulator reaching the first point), so the path
-/// begins on the branch furthest from the limits.
-fn first_point_start(robot: &Robot, p: &Point3<f64>, q_yaw_deg: f64, opts: &IkOptions) -> [f64; 3] {
-    let mut best: Option<([f64; 3], f64)> = None;
-    for a in [-30.0, 0.0, 30.0] {
-        for b in [-30.0, 0.0, 30.0] {
-            for c in [-20.0, 0.0, 20.0] {
-                if let Ok(sol) = robot.ik_position(p, q_yaw_deg, [a, b, c], opts) {
-                    let q = [sol.q_deg[0], sol.q_deg[1], sol.q_deg[2]];
-                    let norm = q.iter().map(|v| v * v).sum::<f64>();
-                    if best.is_none_or(|(_, n)| norm < n) {
-                        best = Some((q, norm));
-                    }
-                }
-            }
+/// The C-shaped bend (segments 1 and 2 bent the same way in proportion to their hinge
+/// counts, jaws straight) whose tip is `r_mm` from the axis: its bend θ (q1 for a pure pitch)
+/// and the tip's axial coordinate; `None` beyond the bend's reach.
+pub fn c_bend(robot: &Robot, r_mm: f64) -> Option<(f64, f64)> {
+    let ratio = robot.config.segment2.modules as f64 / robot.config.segment1.modules as f64;
+    let tip = |t: f64| robot.fk(&[t, 0.0, t * ratio, 0.0, 0.0]).ee.translation.vector;
+    let (mut lo, mut hi) = (0.0, robot.config.limits.q_max_deg[0]);
+    if tip(hi).z < r_mm {
+        return None;
+    }
+    for _ in 0..60 {
+        let mid = 0.5 * (lo + hi);
+        if tip(mid).z < r_mm {
+            lo = mid;
+        } else {
+            hi = mid;
         }
     }
-    best.map(|(q, _)| q).unwrap_or([0.0; 3])
+    let t = 0.5 * (lo + hi);
+    Some((t, tip(t).x))
+}
+
+/// Axial coordinate of the tip when a C-shaped bend puts it `r_mm` from the axis.
+pub fn bend_surface_x(robot: &Robot, r_mm: f64) -> Option<f64> {
+    c_bend(robot, r_mm).map(|(_, x)| x)
+}
+
+/// IK start for a tip position: the C-bend toward it (pitch toward +z, yaw toward +y), so
+/// every point is solved on the same, least-bent branch of the 3×3 position system.
+fn c_bend_guess(robot: &Robot, p: &Point3<f64>) -> [f64; 3] {
+    let r = (p.y * p.y + p.z * p.z).sqrt();
+    let ratio = robot.config.segment2.modules as f64 / robot.config.segment1.modules as f64;
+    match c_bend(robot, r) {
+        Some((t, _)) if r > 1e-9 => {
+            let (c, s) = (p.z / r, p.y / r);
+            [t * c, t * s, t * c * ratio]
+        }
+        _ => [0.0; 3],
+    }
 }
 
 /// Points every `step_deg` of joint-space arc length along a polyline (first point kept;
@@ -342,7 +399,12 @@ pub fn resample_by_arc_length(q: &[JointsDeg], step_deg: f64) -> Vec<JointsDeg> 
     let mut next_at = step_deg;
     let mut travelled = 0.0;
     for w in q.windows(2) {
-        let d: f64 = w[0].iter().zip(&w[1]).map(|(a, b)| (b - a) * (b - a)).sum::<f64>().sqrt();
+        let d: f64 = w[0]
+            .iter()
+            .zip(&w[1])
+            .map(|(a, b)| (b - a) * (b - a))
+            .sum::<f64>()
+            .sqrt();
         while d > 0.0 && travelled + d >= next_at {
             let t = (next_at - travelled) / d;
             out.push(core::array::from_fn(|j| w[0][j] + t * (w[1][j] - w[0][j])));
@@ -391,13 +453,25 @@ mod tests {
             let p = dir.join(format!("{name}.toml"));
             let spec = TrajectorySpec::load(&p).unwrap();
             let t = spec.to_joint_space(&robot, &p).unwrap_or_else(|e| panic!("{e}"));
-            assert!(t.q_deg.len() > 40, "{name}: {} points", t.q_deg.len());
+            assert!(t.q_deg.len() > 20, "{name}: {} points", t.q_deg.len());
             for w in t.q_deg.windows(2) {
-                let d: f64 = w[0].iter().zip(&w[1]).map(|(a, b)| (b - a) * (b - a)).sum::<f64>().sqrt();
+                let d: f64 = w[0]
+                    .iter()
+                    .zip(&w[1])
+                    .map(|(a, b)| (b - a) * (b - a))
+                    .sum::<f64>()
+                    .sqrt();
                 assert!(d <= DATASET_STEP_DEG + 1e-6, "{name}: step {d}");
             }
+            // Inside 80 % of the default plant's physical reach (`bowden plant characterize`:
+            // q1/q2 ±31°, q3 ±17°, jaws ±21° for commands inside the limits): a desired path
+            // the robot cannot physically reach would measure the plant, not the controller.
+            let reach = [31.0, 31.0, 17.0, 21.0, 21.0];
             for q in &t.q_deg {
                 robot.check_limits(q).unwrap();
+                for j in 0..5 {
+                    assert!(q[j].abs() <= 0.8 * reach[j], "{name}: q{} = {:.1} beyond reach", j + 1, q[j]);
+                }
             }
         }
     }
@@ -405,7 +479,9 @@ mod tests {
     #[test]
     fn bad_trajectory_files_name_the_problem() {
         let p = Path::new("bad.toml");
-        let e = TrajectorySpec::parse("name = \"x\"\n[path]\nkind = \"square\"", p).unwrap_err().to_string();
+        let e = TrajectorySpec::parse("name = \"x\"\n[path]\nkind = \"square\"", p)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("bad.toml") && e.contains("malformed"), "{e}");
         let text = "name='c'\njaw_opening={mean_deg=10}\nq_yaw={mean_deg=0}\n\
                     [path]\nkind='circle'\ncenter_mm=[40,0,0]\nradius_mm=-1\nnormal=[1,0,0]";
