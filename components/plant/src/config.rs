@@ -1,0 +1,272 @@
+//! `configs/plant.toml`: the physical parameters of the simulated tendon-sheath drive,
+//! validated on load. A second robot (another sheath routing, other cables) is another file.
+
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+use bowden_kinematics::{N_CABLES, N_JOINTS};
+
+/// Largest number of play operators per cable (the state is a fixed array: no allocation).
+pub const MAX_PLAYS: usize = 16;
+
+/// A plant configuration that could not be used, naming the file and the field.
+#[derive(Debug, thiserror::Error)]
+pub enum PlantConfigError {
+    #[error("{path}: cannot read: {cause}")]
+    Io { path: PathBuf, cause: std::io::Error },
+    #[error("{path}: malformed TOML: {message}")]
+    Parse { path: PathBuf, message: String },
+    #[error("{path}: field `{field}`: {problem}")]
+    Invalid {
+        path: PathBuf,
+        field: String,
+        problem: String,
+    },
+}
+
+/// The sheath every cable runs through between the drive unit and the manipulator base.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SheathConfig {
+    /// Length of cable and sheath, mm (2.5 m in the paper).
+    pub length_mm: f64,
+    /// Total wrap angle of each cable's sheath (the integral of its curvature along the
+    /// routing), deg. This is the "sheath curvature" the dead band grows with.
+    pub wrap_deg: [f64; N_CABLES],
+    /// Coulomb friction coefficient μ between cable and sheath liner (capstan: e^{μφ}).
+    pub friction_coefficient: f64,
+}
+
+/// Friction inside the manipulator: a cable crossing a bent segment wraps the hinge edges by
+/// that segment's bend angle, so the friction of distal cables grows with proximal bending.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct BodyConfig {
+    /// μ between cable and the hinge holes.
+    pub friction_coefficient: f64,
+}
+
+/// The ten actuation cables.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CablesConfig {
+    /// Axial stiffness E·A of each cable in series with its sheath's compression, N.
+    pub axial_stiffness_n: [f64; N_CABLES],
+    /// Pre-tension of each cable at the straight pose, N.
+    pub pretension_n: [f64; N_CABLES],
+}
+
+/// Joint-space properties of the manipulator.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct JointsConfig {
+    /// Elastic restoring stiffness of each joint (flexure hinges in series; jaw return), N·mm/rad.
+    /// Holding a bend takes a tension difference in the cable pairs, which stretches them.
+    pub stiffness_nmm_per_rad: [f64; N_JOINTS],
+    /// Per-joint gain on the angle decoded from the distal cable ends.
+    pub gain: [f64; N_JOINTS],
+    /// Per-joint zero offset, deg.
+    pub offset_deg: [f64; N_JOINTS],
+    /// Residual coupling not explained by the cable routing: q = (I + C)·q_cables, C with a
+    /// zero diagonal (row = affected joint, column = source joint).
+    pub coupling: [[f64; N_JOINTS]; N_JOINTS],
+}
+
+/// Rate-independent hysteresis per cable: a generalised Prandtl–Ishlinskii operator.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct HysteresisConfig {
+    /// Number of play operators per cable (1 = a pure backlash), 1..=16.
+    pub plays: usize,
+    /// Relative spread of the play thresholds around the capstan half-width h: thresholds are
+    /// uniform in h·[1 − s, 1 + s] (friction is not uniform along a real sheath, so the distal
+    /// end starts to follow gradually after a reversal). 0 ≤ s < 1.
+    pub threshold_spread: f64,
+}
+
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DynamicsConfig {
+    /// Time constant of the first-order settling toward the quasi-static state, s.
+    pub time_constant_s: f64,
+}
+
+/// Slow cable creep (slack) for adaptation scenarios. All zero = off.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DriftConfig {
+    /// Creep rate of each cable, mm per hour of simulated time.
+    pub rate_mm_per_hour: [f64; N_CABLES],
+    /// Creep saturates at this length, mm.
+    pub max_mm: f64,
+}
+
+/// Seeded manufacturing variation: every plant instance (seed) is a slightly different robot.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct VariationConfig {
+    /// Relative standard deviation (truncated at ±3σ) applied to each cable's stiffness,
+    /// pre-tension and sheath wrap and to each joint's stiffness.
+    pub relative_sd: f64,
+}
+
+/// Checks on incoming cable commands.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CommandConfig {
+    /// A command may exceed the displacement range the joint limits span by this much, mm.
+    pub margin_mm: f64,
+}
+
+/// The whole plant description.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PlantConfig {
+    pub name: String,
+    pub sheath: SheathConfig,
+    pub body: BodyConfig,
+    pub cables: CablesConfig,
+    pub joints: JointsConfig,
+    pub hysteresis: HysteresisConfig,
+    pub dynamics: DynamicsConfig,
+    pub drift: DriftConfig,
+    pub variation: VariationConfig,
+    pub command: CommandConfig,
+}
+
+impl PlantConfig {
+    /// Reads and validates a plant file.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, PlantConfigError> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path).map_err(|cause| PlantConfigError::Io {
+            path: path.to_path_buf(),
+            cause,
+        })?;
+        Self::parse(&text, path)
+    }
+
+    /// The plant the repository ships (`configs/plant.toml`, embedded at build time).
+    pub fn paper_default() -> Self {
+        Self::parse(
+            include_str!("../../../configs/plant.toml"),
+            Path::new("configs/plant.toml"),
+        )
+        .expect("the shipped configs/plant.toml is valid")
+    }
+
+    /// Parses and validates TOML text; `path` is only used in error messages.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, PlantConfigError> {
+        let cfg: PlantConfig = toml::from_str(text).map_err(|e| PlantConfigError::Parse {
+            path: path.to_path_buf(),
+            message: e.to_string().replace('\n', " "),
+        })?;
+        cfg.validate(path)?;
+        Ok(cfg)
+    }
+
+    /// Checks every field; the error names the first bad one.
+    pub fn validate(&self, path: &Path) -> Result<(), PlantConfigError> {
+        let bad = |field: String, problem: String| PlantConfigError::Invalid {
+            path: path.to_path_buf(),
+            field,
+            problem,
+        };
+        let check = |field: String, v: f64, ok: bool, want: &str| {
+            if v.is_finite() && ok {
+                Ok(())
+            } else {
+                Err(bad(field, format!("must be {want}, got {v}")))
+            }
+        };
+        let s = &self.sheath;
+        check("sheath.length_mm".into(), s.length_mm, s.length_mm > 0.0, "> 0")?;
+        check(
+            "sheath.friction_coefficient".into(),
+            s.friction_coefficient,
+            (0.0..=2.0).contains(&s.friction_coefficient),
+            "in [0, 2]",
+        )?;
+        for (i, &w) in s.wrap_deg.iter().enumerate() {
+            check(
+                format!("sheath.wrap_deg[{i}]"),
+                w,
+                (0.0..=3600.0).contains(&w),
+                "in [0, 3600] deg",
+            )?;
+        }
+        let mu_b = self.body.friction_coefficient;
+        check(
+            "body.friction_coefficient".into(),
+            mu_b,
+            (0.0..=2.0).contains(&mu_b),
+            "in [0, 2]",
+        )?;
+        for i in 0..N_CABLES {
+            let ea = self.cables.axial_stiffness_n[i];
+            check(format!("cables.axial_stiffness_n[{i}]"), ea, ea > 0.0, "> 0 N")?;
+            let t0 = self.cables.pretension_n[i];
+            check(format!("cables.pretension_n[{i}]"), t0, t0 >= 0.0, "≥ 0 N")?;
+            let r = self.drift.rate_mm_per_hour[i];
+            check(format!("drift.rate_mm_per_hour[{i}]"), r, r >= 0.0, "≥ 0 mm/h")?;
+        }
+        let j = &self.joints;
+        for k in 0..N_JOINTS {
+            let st = j.stiffness_nmm_per_rad[k];
+            check(
+                format!("joints.stiffness_nmm_per_rad[{k}]"),
+                st,
+                st >= 0.0,
+                "≥ 0 N·mm/rad",
+            )?;
+            let g = j.gain[k];
+            check(format!("joints.gain[{k}]"), g, g > 0.1 && g < 10.0, "in (0.1, 10)")?;
+            let o = j.offset_deg[k];
+            check(format!("joints.offset_deg[{k}]"), o, o.abs() <= 45.0, "within ±45 deg")?;
+            for c in 0..N_JOINTS {
+                let v = j.coupling[k][c];
+                if k == c {
+                    if v != 0.0 {
+                        return Err(bad(
+                            format!("joints.coupling[{k}][{c}]"),
+                            format!("the diagonal must be 0 (a joint's own scale is joints.gain), got {v}"),
+                        ));
+                    }
+                } else {
+                    check(format!("joints.coupling[{k}][{c}]"), v, v.abs() < 1.0, "within (−1, 1)")?;
+                }
+            }
+        }
+        let h = &self.hysteresis;
+        if !(1..=MAX_PLAYS).contains(&h.plays) {
+            return Err(bad(
+                "hysteresis.plays".into(),
+                format!("must be 1..={MAX_PLAYS}, got {}", h.plays),
+            ));
+        }
+        check(
+            "hysteresis.threshold_spread".into(),
+            h.threshold_spread,
+            (0.0..1.0).contains(&h.threshold_spread),
+            "in [0, 1)",
+        )?;
+        let tau = self.dynamics.time_constant_s;
+        check(
+            "dynamics.time_constant_s".into(),
+            tau,
+            tau > 0.0 && tau <= 60.0,
+            "in (0, 60] s",
+        )?;
+        let m = self.drift.max_mm;
+        check("drift.max_mm".into(), m, m >= 0.0, "≥ 0 mm")?;
+        let v = self.variation.relative_sd;
+        check(
+            "variation.relative_sd".into(),
+            v,
+            (0.0..0.3).contains(&v),
+            "in [0, 0.3)",
+        )?;
+        let cm = self.command.margin_mm;
+        check("command.margin_mm".into(), cm, cm >= 0.0, "≥ 0 mm")?;
+        Ok(())
+    }
+}

@@ -1,0 +1,211 @@
+//! Eq. (16): the command sequence of the paper's dataset.
+//!
+//! The paper draws 1,802 random configurations inside the joint limits and joins consecutive
+//! ones by points spaced 3·√5 apart in joint space (a 3° step on each of the 5 joints), giving
+//! 30,707 commands:
+//!
+//! q_{p_i,j} = q_{p_i} + 3j√5 · (q_{p_{i+1}} − q_{p_i}) / ‖q_{p_{i+1}} − q_{p_i}‖,
+//! j = 0 … ⌊‖q_{p_{i+1}} − q_{p_i}‖ / 3√5⌋.
+//!
+//! Endpoints: for each consecutive pair, j runs from 0 (the pair's start, q_{p_i}) to the
+//! floor inclusive, so every random configuration appears exactly once as the j = 0 point of
+//! the pair it starts. A last interpolated point that lands on q_{p_{i+1}} (distance an exact
+//! multiple of the step) is dropped, because the next pair emits it as its own j = 0, and the
+//! final configuration q_{p_{N−1}} is appended once at the end. A pair of identical
+//! configurations emits nothing (its start is the next pair's start). The count is therefore
+//! Σ_i (⌊d_i / 3√5⌋ + 1) + 1 (minus exact hits).
+//!
+//! With the shipped joint limits (±60°, ±60°, ±44°, ±50°, ±50°, jaws not crossed) consecutive
+//! random configurations are ≈ 87° apart on average, so N configurations give ≈ 13.5·N
+//! commands; the paper's ratio is 30,707 / 1,802 ≈ 17.0, i.e. its random configurations were
+//! ≈ 110° apart (its joint ranges were evidently wider than the ones published in Table I/II).
+
+use bowden_kinematics::{JointsDeg, Robot, N_JOINTS};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// Spacing of consecutive dataset commands in joint space (deg): 3° on each of 5 joints.
+pub const DATASET_STEP_DEG: f64 = 6.708_203_932_499_369; // 3·√5
+
+/// Number of random configurations of the paper's dataset.
+pub const PAPER_DATASET_CONFIGS: usize = 1_802;
+/// Number of commands the paper's dataset has after eq. (16).
+pub const PAPER_DATASET_COMMANDS: usize = 30_707;
+
+/// Rejection sampling gives up after this many draws for one configuration (only a robot whose
+/// jaw limits leave almost no room for the minimum opening gets there) and falls back to
+/// [`Robot::clamp_to_limits`] of the last draw, which opens the jaws symmetrically.
+const MAX_DRAWS_PER_CONFIG: usize = 10_000;
+
+/// `n` configurations drawn uniformly inside the joint limits with the jaws not crossed
+/// (q5 − q4 ≥ the robot's minimum opening): uniform in the box, rejecting crossed jaws, so the
+/// result is uniform over the feasible set. Every returned configuration passes
+/// [`Robot::check_limits`].
+pub fn random_configurations(robot: &Robot, n: usize, rng: &mut ChaCha8Rng) -> Vec<JointsDeg> {
+    let lim = &robot.config.limits;
+    let mut out = Vec::with_capacity(n);
+    for _ in 0..n {
+        let mut q = [0.0; N_JOINTS];
+        let mut accepted = false;
+        for _ in 0..MAX_DRAWS_PER_CONFIG {
+            for (j, v) in q.iter_mut().enumerate() {
+                *v = rng.random_range(lim.q_min_deg[j]..=lim.q_max_deg[j]);
+            }
+            if robot.check_limits(&q).is_ok() {
+                accepted = true;
+                break;
+            }
+        }
+        if !accepted {
+            q = robot.clamp_to_limits(&q);
+        }
+        out.push(q);
+    }
+    out
+}
+
+/// Eq. (16) over a sequence of configurations (see the module docs for the endpoints).
+pub fn interpolate_eq16(configs: &[JointsDeg]) -> Vec<JointsDeg> {
+    let Some(last) = configs.last() else {
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    for pair in configs.windows(2) {
+        let (a, b) = (&pair[0], &pair[1]);
+        let delta: [f64; N_JOINTS] = core::array::from_fn(|k| b[k] - a[k]);
+        let dist = delta.iter().map(|d| d * d).sum::<f64>().sqrt();
+        if dist == 0.0 {
+            continue;
+        }
+        let n_steps = (dist / DATASET_STEP_DEG).floor() as usize;
+        for j in 0..=n_steps {
+            let s = j as f64 * DATASET_STEP_DEG;
+            // An exact hit of the pair's end is the next pair's j = 0 (or the appended last).
+            if j > 0 && (dist - s).abs() < 1e-9 {
+                break;
+            }
+            let t = s / dist;
+            out.push(core::array::from_fn(|k| a[k] + t * delta[k]));
+        }
+    }
+    out.push(*last);
+    out
+}
+
+/// The dataset commands of eq. (16): `n_configs` random configurations (seeded ChaCha8) joined
+/// by 3·√5-spaced interpolation. Same robot + `n_configs` + `seed` give the same commands.
+pub fn dataset_commands(robot: &Robot, n_configs: usize, seed: u64) -> Vec<JointsDeg> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let configs = random_configurations(robot, n_configs, &mut rng);
+    interpolate_eq16(&configs)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dist(a: &JointsDeg, b: &JointsDeg) -> f64 {
+        a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>().sqrt()
+    }
+
+    #[test]
+    fn step_is_three_root_five() {
+        assert!((DATASET_STEP_DEG - 3.0 * 5f64.sqrt()).abs() < 1e-15);
+    }
+
+    #[test]
+    fn spacing_and_counts_follow_eq16() {
+        let robot = Robot::paper_default();
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let configs = random_configurations(&robot, 200, &mut rng);
+        let cmds = interpolate_eq16(&configs);
+        let expected: usize = configs
+            .windows(2)
+            .map(|w| (dist(&w[0], &w[1]) / DATASET_STEP_DEG).floor() as usize + 1)
+            .sum::<usize>()
+            + 1;
+        assert_eq!(cmds.len(), expected);
+        // Walk the sequence: every configuration appears in order, and between two of them
+        // consecutive commands are exactly one step apart on the straight line, except the
+        // last step into the next configuration, which is shorter (≤ one step).
+        let mut k = 0;
+        for w in configs.windows(2) {
+            assert_eq!(cmds[k], w[0]);
+            let n = (dist(&w[0], &w[1]) / DATASET_STEP_DEG).floor() as usize;
+            for j in 1..=n {
+                let d = dist(&cmds[k + j - 1], &cmds[k + j]);
+                assert!((d - DATASET_STEP_DEG).abs() < 1e-9, "step {d}");
+            }
+            let tail = dist(&cmds[k + n], &w[1]);
+            assert!(tail < DATASET_STEP_DEG + 1e-9, "tail {tail}");
+            k += n + 1;
+        }
+        assert_eq!(cmds[k], *configs.last().unwrap());
+        assert_eq!(k + 1, cmds.len());
+        for q in &cmds {
+            robot
+                .check_limits(q)
+                .expect("interpolated commands stay inside the limits");
+        }
+    }
+
+    #[test]
+    fn ratio_is_close_to_the_papers() {
+        let robot = Robot::paper_default();
+        let n = 1802;
+        let cmds = dataset_commands(&robot, n, 7);
+        let ratio = cmds.len() as f64 / n as f64;
+        let paper = PAPER_DATASET_COMMANDS as f64 / PAPER_DATASET_CONFIGS as f64;
+        // Documented: ≈ 13.5 with the shipped limits against the paper's 17.0.
+        assert!(ratio > 12.5 && ratio < paper, "ratio {ratio}");
+    }
+
+    #[test]
+    fn exact_hits_are_not_duplicated() {
+        let a = [0.0; N_JOINTS];
+        let b = [3.0 * 2.0; N_JOINTS]; // distance 6√5 = exactly 2 steps
+        let cmds = interpolate_eq16(&[a, b, a]);
+        // a, a+1 step, b, b+1 step (back), a
+        assert_eq!(cmds.len(), 5);
+        for w in cmds.windows(2) {
+            assert!((dist(&w[0], &w[1]) - DATASET_STEP_DEG).abs() < 1e-9);
+        }
+        assert!(interpolate_eq16(&[]).is_empty());
+        assert_eq!(interpolate_eq16(&[a]), vec![a]);
+        assert_eq!(interpolate_eq16(&[a, a, b]).len(), 3);
+    }
+
+    #[test]
+    fn seeded_and_deterministic() {
+        let robot = Robot::paper_default();
+        let a = dataset_commands(&robot, 50, 11);
+        let b = dataset_commands(&robot, 50, 11);
+        let c = dataset_commands(&robot, 50, 12);
+        let bytes = |v: &[JointsDeg]| v.iter().flatten().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+        assert_eq!(bytes(&a), bytes(&b));
+        assert_ne!(bytes(&a), bytes(&c));
+    }
+
+    #[test]
+    fn configurations_respect_limits_and_jaws() {
+        let robot = Robot::paper_default();
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let configs = random_configurations(&robot, 2000, &mut rng);
+        for q in &configs {
+            robot.check_limits(q).unwrap();
+        }
+        // Uniform: each joint's mean is near the middle of its range.
+        for j in 0..N_JOINTS {
+            let m = configs.iter().map(|q| q[j]).sum::<f64>() / configs.len() as f64;
+            let lim = &robot.config.limits;
+            let mid = 0.5 * (lim.q_min_deg[j] + lim.q_max_deg[j]);
+            let expect = match j {
+                // Rejecting crossed jaws shifts q4 down and q5 up by a third of the half-range.
+                3 => mid - (lim.q_max_deg[j] - lim.q_min_deg[j]) / 6.0,
+                4 => mid + (lim.q_max_deg[j] - lim.q_min_deg[j]) / 6.0,
+                _ => mid,
+            };
+            assert!((m - expect).abs() < 3.0, "q{} mean {m} expected {expect}", j + 1);
+        }
+    }
+}
