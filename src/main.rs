@@ -42,6 +42,12 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
+    // Like every Unix tool: a closed pipe (`bowden ... | head`) ends the process quietly
+    // instead of making `println!` panic.
+    // SAFETY: resetting a signal disposition to its default before any thread exists.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Kinematics(c) => cmd::kin::run(c),

@@ -3,7 +3,7 @@
 
 use anyhow::{bail, Context, Result};
 use bowden_evaluation::report::{summarise, write_report};
-use bowden_evaluation::{camera_fps_for, pipeline_variant, run_trajectory, EvalSettings, CONTROLLERS};
+use bowden_evaluation::{camera_fps_for, pipeline_variant, run_trajectory, EvalSettings, RunSpec, CONTROLLERS};
 use bowden_runtime::config::{Overrides, PipelineConfig};
 use bowden_kinematics::Robot;
 use bowden_runtime::launch::LaunchOptions;
@@ -135,7 +135,15 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
             for r in 0..a.repeats {
                 bar.set_message(format!("{} / {c} / #{r}", t.name));
                 let approach = approach_path(&t.q_deg);
-                let run = run_trajectory(pipeline, &t.name, c, r, &approach, &t.q_deg, &settings, &mut || bar.inc(1))?;
+                let spec = RunSpec {
+                    pipeline_file: pipeline,
+                    name: &t.name,
+                    controller: c,
+                    repeat: r,
+                    approach: &approach,
+                    q_path: &t.q_deg,
+                };
+                let run = run_trajectory(&spec, &settings, &mut || bar.inc(1))?;
                 runs.push(run);
             }
         }

@@ -176,20 +176,33 @@ fn absolutize_paths(v: &mut toml::Table, base: &Path) {
     }
 }
 
+/// One run to make: which pipeline (controller), trajectory and repeat.
+#[derive(Debug, Clone, Copy)]
+pub struct RunSpec<'a> {
+    /// The pipeline file for the controller (see [`pipeline_variant`]).
+    pub pipeline_file: &'a Path,
+    pub name: &'a str,
+    pub controller: &'a str,
+    pub repeat: u32,
+    /// Home → the trajectory's start, held but not measured.
+    pub approach: &'a [JointsDeg],
+    /// The measured points.
+    pub q_path: &'a [JointsDeg],
+}
+
 /// Runs one trajectory through the lockstep pipeline `pipeline_file` and records every point.
 /// The robot first moves along `approach` (home → the trajectory's start at the model step,
 /// held like any point, not measured), so the first measured point does not start with a jump.
 /// `on_point` is called after each measured point (progress).
-pub fn run_trajectory(
-    pipeline_file: &Path,
-    name: &str,
-    controller: &str,
-    repeat: u32,
-    approach: &[JointsDeg],
-    q_path: &[JointsDeg],
-    settings: &EvalSettings,
-    on_point: &mut dyn FnMut(),
-) -> Result<RunRecord, EvalError> {
+pub fn run_trajectory(run: &RunSpec<'_>, settings: &EvalSettings, on_point: &mut dyn FnMut()) -> Result<RunRecord, EvalError> {
+    let RunSpec {
+        pipeline_file,
+        name,
+        controller,
+        repeat,
+        approach,
+        q_path,
+    } = *run;
     let seed = settings.seed0 + u64::from(repeat);
     let what = format!("{name}/{controller}/repeat {repeat}");
     let ov = Overrides {

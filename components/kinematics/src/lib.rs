@@ -110,8 +110,8 @@ impl Robot {
     pub fn clamp_to_limits(&self, q_deg: &JointsDeg) -> JointsDeg {
         let lim = &self.config.limits;
         let mut q = *q_deg;
-        for j in 0..N_JOINTS {
-            q[j] = q[j].clamp(lim.q_min_deg[j], lim.q_max_deg[j]);
+        for ((v, lo), hi) in q.iter_mut().zip(&lim.q_min_deg).zip(&lim.q_max_deg) {
+            *v = v.clamp(*lo, *hi);
         }
         let opening = q[4] - q[3];
         if opening < lim.min_jaw_opening_deg {
