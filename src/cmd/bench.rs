@@ -5,6 +5,8 @@ use clap::Subcommand;
 #[derive(Subcommand)]
 pub enum Command {
     #[command(flatten)]
+    Camera(super::camera::BenchCommand),
+    #[command(flatten)]
     Compensate(super::compensate::BenchCommand),
     #[command(flatten)]
     Runtime(super::runtime::BenchCommand),
@@ -14,6 +16,7 @@ pub enum Command {
 
 pub fn run(c: Command) -> anyhow::Result<()> {
     match c {
+        Command::Camera(c) => super::camera::bench(c),
         Command::Compensate(c) => super::compensate::bench(c),
         Command::Runtime(c) => super::runtime::bench(c),
         Command::Learning(c) => super::learning::bench(c),

@@ -1,0 +1,141 @@
+//! Frame-render latency over a seeded set of workspace configurations, as percentiles
+//! (`bowden bench camera`). The criterion bench (`cargo bench --bench camera`) measures one
+//! fixed scene; this one varies the scene the way the runtime does.
+
+use hdrhistogram::Histogram;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+use std::time::Instant;
+
+use bowden_kinematics::JointsDeg;
+
+use crate::{CameraError, SyntheticCamera};
+
+/// Render latency of one camera over many frames.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct RenderLatency {
+    pub frames: u64,
+    pub width: u32,
+    pub height: u32,
+    pub p50_ns: u64,
+    pub p99_ns: u64,
+    pub p999_ns: u64,
+    pub max_ns: u64,
+    pub mean_ns: f64,
+    /// Frames per second at the median latency.
+    pub fps_at_p50: f64,
+}
+
+impl RenderLatency {
+    pub fn to_markdown(&self) -> String {
+        let ms = |ns: u64| ns as f64 / 1e6;
+        format!(
+            "| frames | size | p50 ms | p99 ms | p99.9 ms | max ms | mean ms | fps at p50 |\n\
+             |---:|---:|---:|---:|---:|---:|---:|---:|\n\
+             | {} | {}x{} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.0} |\n",
+            self.frames,
+            self.width,
+            self.height,
+            ms(self.p50_ns),
+            ms(self.p99_ns),
+            ms(self.p999_ns),
+            ms(self.max_ns),
+            self.mean_ns / 1e6,
+            self.fps_at_p50
+        )
+    }
+}
+
+/// Seeded configurations uniformly inside the robot's joint limits (jaws not crossed).
+pub fn workspace_configurations(cam: &SyntheticCamera, n: usize, seed: u64) -> Vec<JointsDeg> {
+    let lim = &cam.robot().config.limits;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    (0..n)
+        .map(|_| {
+            let mut q = [0.0; 5];
+            for (j, v) in q.iter_mut().enumerate() {
+                *v = rng.random_range(lim.q_min_deg[j]..=lim.q_max_deg[j]);
+            }
+            if q[4] - q[3] < lim.min_jaw_opening_deg {
+                q = cam.robot().clamp_to_limits(&q);
+            }
+            q
+        })
+        .collect()
+}
+
+/// Renders `frames` frames (cycling through `qs`) into an interfaces payload and records
+/// each frame's wall time; `progress` is called with the frames done since its last call.
+pub fn render_latency(
+    cam: &mut SyntheticCamera,
+    qs: &[JointsDeg],
+    frames: u64,
+    progress: &mut dyn FnMut(u64),
+) -> Result<RenderLatency, CameraError> {
+    if qs.is_empty() {
+        return Err(CameraError::Invalid {
+            path: "<bench>".into(),
+            field: "configurations".into(),
+            problem: "need at least one configuration to render".into(),
+        });
+    }
+    let mut payload = vec![0u8; cam.payload_len()];
+    // 1 µs .. 10 s at 3 significant digits; creation only fails on invalid bounds.
+    let mut hist = Histogram::<u64>::new_with_bounds(1_000, 10_000_000_000, 3).map_err(|e| CameraError::Invalid {
+        path: "<bench>".into(),
+        field: "histogram".into(),
+        problem: e.to_string(),
+    })?;
+    let mut sum_ns = 0f64;
+    for k in 0..frames {
+        let q = qs[(k as usize) % qs.len()];
+        let t = Instant::now();
+        cam.render_into_payload(&q, k, &mut payload)?;
+        let ns = (t.elapsed().as_nanos() as u64).clamp(1_000, 10_000_000_000);
+        hist.saturating_record(ns);
+        sum_ns += ns as f64;
+        if k % 16 == 15 {
+            progress(16);
+        }
+    }
+    progress(frames % 16);
+    let p50 = hist.value_at_quantile(0.5);
+    Ok(RenderLatency {
+        frames,
+        width: cam.width(),
+        height: cam.height(),
+        p50_ns: p50,
+        p99_ns: hist.value_at_quantile(0.99),
+        p999_ns: hist.value_at_quantile(0.999),
+        max_ns: hist.max(),
+        mean_ns: sum_ns / frames.max(1) as f64,
+        fps_at_p50: 1e9 / p50.max(1) as f64,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::CameraConfig;
+    use bowden_kinematics::{markers::MarkerGeometry, Robot};
+
+    #[test]
+    fn latency_report_is_consistent_and_configurations_respect_limits() {
+        let mut cam = SyntheticCamera::new(
+            Robot::paper_default(),
+            MarkerGeometry::paper_default(),
+            CameraConfig::paper_default(),
+            1,
+        );
+        let qs = workspace_configurations(&cam, 20, 3);
+        assert!(qs.iter().all(|q| cam.robot().check_limits(q).is_ok()));
+        assert_eq!(qs, workspace_configurations(&cam, 20, 3));
+        let mut done = 0;
+        let r = render_latency(&mut cam, &qs, 21, &mut |n| done += n).expect("bench");
+        assert_eq!((r.frames, done, r.width, r.height), (21, 21, 640, 480));
+        assert!(r.p50_ns <= r.p99_ns && r.p99_ns <= r.p999_ns && r.p999_ns <= r.max_ns);
+        assert!(r.to_markdown().contains("| 21 | 640x480 |"));
+        assert!(render_latency(&mut cam, &[], 1, &mut |_| {}).is_err());
+    }
+}
