@@ -8,9 +8,13 @@ use std::hint::black_box;
 fn kinematics(c: &mut Criterion) {
     let robot = Robot::paper_default();
     let q = [23.0, -31.0, 17.0, -12.0, 20.0];
-    c.bench_function("fk (5 joints, 30 modules, jaws, ee)", |b| b.iter(|| robot.fk(black_box(&q))));
+    c.bench_function("fk (5 joints, 30 modules, jaws, ee)", |b| {
+        b.iter(|| robot.fk(black_box(&q)))
+    });
     let q4 = [q[0], q[1], q[2], 0.5 * (q[3] + q[4])];
-    c.bench_function("ee pose + analytic jacobian", |b| b.iter(|| robot.ee_jacobian(black_box(&q4))));
+    c.bench_function("ee pose + analytic jacobian", |b| {
+        b.iter(|| robot.ee_jacobian(black_box(&q4)))
+    });
     let target = robot.fk(&q).ee;
     let opts = IkOptions::default();
     c.bench_function("ik from zero (to 1e-9 mm)", |b| {
@@ -25,7 +29,12 @@ fn kinematics(c: &mut Criterion) {
     });
     let w = robot.cables().displacements_mm(&q);
     c.bench_function("cable inverse (joints from 10 cables)", |b| {
-        b.iter(|| robot.cables().joints_from_displacements(black_box(&w)).expect("consistent"))
+        b.iter(|| {
+            robot
+                .cables()
+                .joints_from_displacements(black_box(&w))
+                .expect("consistent")
+        })
     });
 }
 

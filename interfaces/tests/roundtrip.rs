@@ -83,7 +83,11 @@ fn rgbd_frame_slice_with_header_roundtrips() {
     let got = subscriber.receive().unwrap().expect("a frame arrives");
     assert_eq!(bytes_of(&header), bytes_of(got.user_header()));
     assert_eq!(got.payload().len(), len);
-    assert!(got.payload().iter().enumerate().all(|(i, &b)| b == (i.wrapping_mul(2654435761) >> 7) as u8));
+    assert!(got
+        .payload()
+        .iter()
+        .enumerate()
+        .all(|(i, &b)| b == (i.wrapping_mul(2654435761) >> 7) as u8));
 }
 
 #[test]

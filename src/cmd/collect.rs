@@ -64,7 +64,11 @@ fn collect(a: CollectArgs) -> Result<()> {
     let tick_ns = PipelineConfig::load(&a.config, &Overrides::default())?.period_ns();
     let mut set = vec![
         ("compensator", "mode", toml::Value::String("uncalibrated".into())),
-        ("camera", "fps", toml::Value::Float(camera_fps_for(a.settle_ticks, tick_ns))),
+        (
+            "camera",
+            "fps",
+            toml::Value::Float(camera_fps_for(a.settle_ticks, tick_ns)),
+        ),
     ];
     if let Some(p) = &a.plant {
         let abs = std::fs::canonicalize(p).with_context(|| format!("--plant {}", p.display()))?;
@@ -147,7 +151,10 @@ fn collect(a: CollectArgs) -> Result<()> {
     report?;
     let config_text = std::fs::read_to_string(&pipeline).unwrap_or_default()
         + &std::fs::read_to_string(&a.robot).unwrap_or_default()
-        + &a.plant.as_ref().and_then(|p| std::fs::read_to_string(p).ok()).unwrap_or_default();
+        + &a.plant
+            .as_ref()
+            .and_then(|p| std::fs::read_to_string(p).ok())
+            .unwrap_or_default();
     let provenance = serde_json::json!({
         "command": std::env::args().collect::<Vec<_>>(),
         "pipeline": pipeline.display().to_string(),
@@ -158,7 +165,13 @@ fn collect(a: CollectArgs) -> Result<()> {
         "tick_ns": cfg.period_ns(),
         "step_deg": bowden_trajectory::DATASET_STEP_DEG,
     });
-    let manifest = data.write_dir(&a.out, "collect", Some(a.seed), Some(fnv1a64_hex(config_text.as_bytes())), provenance)?;
+    let manifest = data.write_dir(
+        &a.out,
+        "collect",
+        Some(a.seed),
+        Some(fnv1a64_hex(config_text.as_bytes())),
+        provenance,
+    )?;
     println!(
         "{}: {} commands from {} random configurations, {} with a valid vision estimate ({:.2} %)",
         a.out.display(),

@@ -4,8 +4,8 @@
 use anyhow::{bail, Context, Result};
 use bowden_evaluation::report::{summarise, write_report};
 use bowden_evaluation::{camera_fps_for, pipeline_variant, run_trajectory, EvalSettings, RunSpec, CONTROLLERS};
-use bowden_runtime::config::{Overrides, PipelineConfig};
 use bowden_kinematics::Robot;
+use bowden_runtime::config::{Overrides, PipelineConfig};
 use bowden_runtime::launch::LaunchOptions;
 use bowden_trajectory::task_space::TrajectorySpec;
 use clap::{Args, Subcommand};
@@ -77,7 +77,10 @@ fn approach_path(q: &[bowden_kinematics::JointsDeg]) -> Vec<bowden_kinematics::J
 fn evaluate(a: EvaluateArgs) -> Result<()> {
     for c in &a.controllers {
         if !CONTROLLERS.contains(&c.as_str()) {
-            bail!("--controllers: unknown controller `{c}` (expected {})", CONTROLLERS.join(", "));
+            bail!(
+                "--controllers: unknown controller `{c}` (expected {})",
+                CONTROLLERS.join(", ")
+            );
         }
     }
     if a.repeats == 0 || a.settle_ticks == 0 {
@@ -109,7 +112,11 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
                 set.push((node, "config", toml::Value::String(abs.display().to_string())));
             }
         }
-        pipelines.push(pipeline_variant(&a.config, &set, &work_dir.join(format!("pipeline-{c}.toml")))?);
+        pipelines.push(pipeline_variant(
+            &a.config,
+            &set,
+            &work_dir.join(format!("pipeline-{c}.toml")),
+        )?);
     }
     let settings = EvalSettings {
         settle_ticks: a.settle_ticks,
@@ -122,7 +129,8 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
             ..LaunchOptions::current_exe().context("locating the bowden executable")?
         },
     };
-    let total: u64 = paths.iter().map(|t| t.q_deg.len() as u64).sum::<u64>() * a.controllers.len() as u64 * u64::from(a.repeats);
+    let total: u64 =
+        paths.iter().map(|t| t.q_deg.len() as u64).sum::<u64>() * a.controllers.len() as u64 * u64::from(a.repeats);
     let bar = ProgressBar::new(total);
     bar.set_style(
         ProgressStyle::with_template("{msg:32} [{bar:30}] {pos}/{len} points  {per_sec}  eta {eta}")
@@ -164,6 +172,13 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
         std::fs::write(j, serde_json::to_string_pretty(&summary)?).with_context(|| format!("{}", j.display()))?;
     }
     print!("{}", bowden_evaluation::report::markdown(&summary, &header));
-    eprintln!("report: {}", files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>().join(", "));
+    eprintln!(
+        "report: {}",
+        files
+            .iter()
+            .map(|f| f.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
     Ok(())
 }

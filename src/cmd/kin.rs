@@ -75,11 +75,16 @@ pub fn run(c: Command) -> Result<()> {
 pub fn parse_list<const N: usize>(text: &str, what: &str) -> Result<[f64; N]> {
     let parts: Vec<&str> = text.split(',').map(str::trim).collect();
     if parts.len() != N {
-        bail!("{what}: expected {N} comma-separated numbers, got {} in {text:?}", parts.len());
+        bail!(
+            "{what}: expected {N} comma-separated numbers, got {} in {text:?}",
+            parts.len()
+        );
     }
     let mut out = [0.0; N];
     for (i, p) in parts.iter().enumerate() {
-        let v: f64 = p.parse().with_context(|| format!("{what}[{i}]: {p:?} is not a number"))?;
+        let v: f64 = p
+            .parse()
+            .with_context(|| format!("{what}[{i}]: {p:?} is not a number"))?;
         if !v.is_finite() {
             bail!("{what}[{i}]: {p:?} is not a finite number");
         }
@@ -201,7 +206,10 @@ fn cables(q: Option<&str>, w: Option<&str>, robot_arg: &RobotArg) -> Result<()> 
             let q = joints(&robot, q)?;
             let w = robot.cables().displacements_mm(&q);
             if robot_arg.json {
-                println!("{}", serde_json::json!({ "q_deg": q, "cable_disp_mm": w, "cables": names }));
+                println!(
+                    "{}",
+                    serde_json::json!({ "q_deg": q, "cable_disp_mm": w, "cables": names })
+                );
             } else {
                 println!("cable displacements for q = {q:?} deg (mm, + = pulled in):");
                 for (n, v) in names.iter().zip(w) {

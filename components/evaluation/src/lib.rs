@@ -194,7 +194,11 @@ pub struct RunSpec<'a> {
 /// The robot first moves along `approach` (home → the trajectory's start at the model step,
 /// held like any point, not measured), so the first measured point does not start with a jump.
 /// `on_point` is called after each measured point (progress).
-pub fn run_trajectory(run: &RunSpec<'_>, settings: &EvalSettings, on_point: &mut dyn FnMut()) -> Result<RunRecord, EvalError> {
+pub fn run_trajectory(
+    run: &RunSpec<'_>,
+    settings: &EvalSettings,
+    on_point: &mut dyn FnMut(),
+) -> Result<RunRecord, EvalError> {
     let RunSpec {
         pipeline_file,
         name,

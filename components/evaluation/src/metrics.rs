@@ -132,7 +132,9 @@ mod tests {
         );
         let t = task_errors(&[(id, a), (id, b)]);
         assert_eq!(t.n, 2);
-        assert!((t.x_mae_mm - 1.5).abs() < 1e-12 && (t.y_mae_mm - 0.5).abs() < 1e-12 && (t.z_mae_mm - 2.0).abs() < 1e-12);
+        assert!(
+            (t.x_mae_mm - 1.5).abs() < 1e-12 && (t.y_mae_mm - 0.5).abs() < 1e-12 && (t.z_mae_mm - 2.0).abs() < 1e-12
+        );
         assert!((t.pos_mean_mm - 3.0).abs() < 1e-12 && (t.pos_sd_mm - 2.0).abs() < 1e-12);
         assert!((t.rot_mean_deg - 5.0).abs() < 1e-9 && (t.rot_sd_deg - 5.0).abs() < 1e-9);
     }

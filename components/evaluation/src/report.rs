@@ -94,7 +94,10 @@ pub fn summarise(robot: &Robot, runs: &[RunRecord]) -> Summary {
     let mut cells = Vec::new();
     for t in &trajectories {
         for c in &controllers {
-            let sel: Vec<&RunRecord> = runs.iter().filter(|r| &r.trajectory == t && &r.controller == c).collect();
+            let sel: Vec<&RunRecord> = runs
+                .iter()
+                .filter(|r| &r.trajectory == t && &r.controller == c)
+                .collect();
             if !sel.is_empty() {
                 cells.push(pool(robot, t, c, &sel));
             }
@@ -137,13 +140,19 @@ fn table_v(s: &Summary, by_truth: bool) -> String {
         ("X error [mm]", |e| format!("{:.2}", e.x_mae_mm)),
         ("Y error [mm]", |e| format!("{:.2}", e.y_mae_mm)),
         ("Z error [mm]", |e| format!("{:.2}", e.z_mae_mm)),
-        ("Total position error [mm]", |e| format!("{:.2} ± {:.1}", e.pos_mean_mm, e.pos_sd_mm)),
-        ("Orientation error [°]", |e| format!("{:.2} ± {:.1}", e.rot_mean_deg, e.rot_sd_deg)),
+        ("Total position error [mm]", |e| {
+            format!("{:.2} ± {:.1}", e.pos_mean_mm, e.pos_sd_mm)
+        }),
+        ("Orientation error [°]", |e| {
+            format!("{:.2} ± {:.1}", e.rot_mean_deg, e.rot_sd_deg)
+        }),
     ];
     for (name, f) in rows {
         let _ = write!(out, "| {name} |");
         for (t, c) in &cols {
-            let cell = s.cell(t, c).map(|x| if by_truth { &x.task_truth } else { &x.task_vision });
+            let cell = s
+                .cell(t, c)
+                .map(|x| if by_truth { &x.task_truth } else { &x.task_vision });
             let _ = write!(out, " {} |", cell.map(f).unwrap_or_default());
         }
         out.push('\n');
@@ -190,7 +199,11 @@ fn table_vi(s: &Summary, trajectory: &str, by_truth: bool) -> String {
     out.push('\n');
     for c in &s.controllers {
         if let Some(cell) = s.cell(trajectory, c) {
-            let j = if by_truth { &cell.joint_truth } else { &cell.joint_vision };
+            let j = if by_truth {
+                &cell.joint_truth
+            } else {
+                &cell.joint_vision
+            };
             for (label, v) in [("MAE", &j.mae_deg), ("SD", &j.sd_deg)] {
                 let _ = write!(out, "| {c} | {label} |");
                 for x in v {
@@ -219,7 +232,11 @@ pub fn markdown(s: &Summary, header: &str) -> String {
             "## Table VI — joint errors, {t} trajectory, vision\n\n{}",
             table_vi(s, t, false)
         );
-        let _ = writeln!(out, "## Table VI — joint errors, {t} trajectory, truth\n\n{}", table_vi(s, t, true));
+        let _ = writeln!(
+            out,
+            "## Table VI — joint errors, {t} trajectory, truth\n\n{}",
+            table_vi(s, t, true)
+        );
     }
     let _ = writeln!(out, "## Estimates and refinement\n");
     let _ = writeln!(out, "| trajectory | controller | points | invalid vision estimates | mean refinement iterations |\n|---|---|---|---|---|");
@@ -240,21 +257,41 @@ fn plot_err(e: impl std::fmt::Display, path: &Path) -> EvalError {
     }
 }
 
-const COLOURS: [RGBColor; 4] = [RGBColor(200, 40, 40), RGBColor(30, 110, 200), RGBColor(20, 150, 60), RGBColor(150, 80, 180)];
+const COLOURS: [RGBColor; 4] = [
+    RGBColor(200, 40, 40),
+    RGBColor(30, 110, 200),
+    RGBColor(20, 150, 60),
+    RGBColor(150, 80, 180),
+];
 
 /// Fig. 12-style plots of one trajectory: desired vs reached tip path (y–z projection, across
 /// the manipulator's axis) and the position error along the path, for repeat 0 of each
 /// controller (simulator truth). Returns the files written.
 pub fn plots(robot: &Robot, runs: &[RunRecord], trajectory: &str, dir: &Path) -> Result<Vec<PathBuf>, EvalError> {
-    let sel: Vec<&RunRecord> = runs.iter().filter(|r| r.trajectory == trajectory && r.repeat == 0).collect();
-    let Some(first) = sel.first() else { return Ok(Vec::new()) };
+    let sel: Vec<&RunRecord> = runs
+        .iter()
+        .filter(|r| r.trajectory == trajectory && r.repeat == 0)
+        .collect();
+    let Some(first) = sel.first() else {
+        return Ok(Vec::new());
+    };
     let tip = |q: &JointsDeg| ee_pose(robot, q).translation.vector;
-    let desired: Vec<(f64, f64)> = first.points.iter().map(|p| tip(&p.q_desired_deg)).map(|v| (v.y, v.z)).collect();
+    let desired: Vec<(f64, f64)> = first
+        .points
+        .iter()
+        .map(|p| tip(&p.q_desired_deg))
+        .map(|v| (v.y, v.z))
+        .collect();
     let mut all: Vec<(f64, f64)> = desired.clone();
     let reached: Vec<(String, Vec<(f64, f64)>)> = sel
         .iter()
         .map(|r| {
-            let v: Vec<(f64, f64)> = r.points.iter().map(|p| tip(&p.q_true_deg)).map(|v| (v.y, v.z)).collect();
+            let v: Vec<(f64, f64)> = r
+                .points
+                .iter()
+                .map(|p| tip(&p.q_true_deg))
+                .map(|v| (v.y, v.z))
+                .collect();
             all.extend(&v);
             (r.controller.clone(), v)
         })
@@ -272,7 +309,10 @@ pub fn plots(robot: &Robot, runs: &[RunRecord], trajectory: &str, dir: &Path) ->
         let root = SVGBackend::new(&path_file, (760, 640)).into_drawing_area();
         root.fill(&WHITE).map_err(|e| plot_err(e, &path_file))?;
         let mut chart = ChartBuilder::on(&root)
-            .caption(format!("{trajectory}: desired vs reached tip path (truth, repeat 0)"), ("sans-serif", 20))
+            .caption(
+                format!("{trajectory}: desired vs reached tip path (truth, repeat 0)"),
+                ("sans-serif", 20),
+            )
             .margin(12)
             .x_label_area_size(40)
             .y_label_area_size(50)
@@ -328,7 +368,10 @@ pub fn plots(robot: &Robot, runs: &[RunRecord], trajectory: &str, dir: &Path) ->
         let root = SVGBackend::new(&err_file, (900, 420)).into_drawing_area();
         root.fill(&WHITE).map_err(|e| plot_err(e, &err_file))?;
         let mut chart = ChartBuilder::on(&root)
-            .caption(format!("{trajectory}: tip position error along the path (truth)"), ("sans-serif", 20))
+            .caption(
+                format!("{trajectory}: tip position error along the path (truth)"),
+                ("sans-serif", 20),
+            )
             .margin(12)
             .x_label_area_size(40)
             .y_label_area_size(50)
@@ -360,20 +403,31 @@ pub fn plots(robot: &Robot, runs: &[RunRecord], trajectory: &str, dir: &Path) ->
 }
 
 /// Writes `report.md`, `report.json` (summary and every run) and the plots into `dir`.
-pub fn write_report(robot: &Robot, runs: &[RunRecord], summary: &Summary, header: &str, dir: &Path) -> Result<Vec<PathBuf>, EvalError> {
+pub fn write_report(
+    robot: &Robot,
+    runs: &[RunRecord],
+    summary: &Summary,
+    header: &str,
+    dir: &Path,
+) -> Result<Vec<PathBuf>, EvalError> {
     std::fs::create_dir_all(dir).map_err(|source| EvalError::Io {
         path: dir.to_path_buf(),
         source,
     })?;
     let mut files = Vec::new();
     let md = dir.join("report.md");
-    std::fs::write(&md, markdown(summary, header)).map_err(|source| EvalError::Io { path: md.clone(), source })?;
+    std::fs::write(&md, markdown(summary, header)).map_err(|source| EvalError::Io {
+        path: md.clone(),
+        source,
+    })?;
     files.push(md);
     let json = dir.join("report.json");
     let value = serde_json::json!({ "summary": summary, "runs": runs });
-    std::fs::write(&json, serde_json::to_string_pretty(&value).unwrap_or_default()).map_err(|source| EvalError::Io {
-        path: json.clone(),
-        source,
+    std::fs::write(&json, serde_json::to_string_pretty(&value).unwrap_or_default()).map_err(|source| {
+        EvalError::Io {
+            path: json.clone(),
+            source,
+        }
     })?;
     files.push(json);
     for t in &summary.trajectories {

@@ -60,7 +60,9 @@ pub struct CableModel {
 pub enum CableError {
     #[error("cable displacement w{cable} = {value_mm} mm is not finite")]
     NotFinite { cable: usize, value_mm: f64 },
-    #[error("cable displacements are inconsistent with any configuration (residual {residual_mm:.3e} mm on joint q{joint})")]
+    #[error(
+        "cable displacements are inconsistent with any configuration (residual {residual_mm:.3e} mm on joint q{joint})"
+    )]
     NoSolution { joint: usize, residual_mm: f64 },
 }
 
@@ -76,7 +78,12 @@ impl CableModel {
             }
         });
         let pairs = core::array::from_fn(|j| {
-            let mut it = cfg.cables.iter().enumerate().filter(|(_, c)| c.joint == j + 1).map(|(i, _)| i);
+            let mut it = cfg
+                .cables
+                .iter()
+                .enumerate()
+                .filter(|(_, c)| c.joint == j + 1)
+                .map(|(i, _)| i);
             let a = it.next().expect("validated: two cables per joint");
             let b = it.next().expect("validated: two cables per joint");
             (a, b)
@@ -135,7 +142,10 @@ impl CableModel {
     pub fn joints_from_displacements(&self, w_mm: &[f64; N_CABLES]) -> Result<JointsDeg, CableError> {
         for (i, &v) in w_mm.iter().enumerate() {
             if !v.is_finite() {
-                return Err(CableError::NotFinite { cable: i + 1, value_mm: v });
+                return Err(CableError::NotFinite {
+                    cable: i + 1,
+                    value_mm: v,
+                });
             }
         }
         let target: [f64; N_JOINTS] = core::array::from_fn(|j| w_mm[self.pairs[j].0] - w_mm[self.pairs[j].1]);
@@ -172,6 +182,9 @@ impl CableModel {
         if worst < 1e-9 {
             return Ok(q.map(f64::to_degrees));
         }
-        Err(CableError::NoSolution { joint, residual_mm: worst })
+        Err(CableError::NoSolution {
+            joint,
+            residual_mm: worst,
+        })
     }
 }

@@ -9,10 +9,7 @@ use crate::N_JOINTS;
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
     #[error("{path}: cannot read: {source}")]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
+    Io { path: PathBuf, source: std::io::Error },
     #[error("{path}: malformed TOML: {message}")]
     Parse { path: PathBuf, message: String },
     #[error("{path}: field `{field}`: {problem}")]
@@ -143,7 +140,10 @@ impl RobotConfig {
                 format!("must be ≥ 0, got {}", self.forceps.wrist_length_mm),
             ));
         }
-        for (field, seg) in [("segment1.modules", &self.segment1), ("segment2.modules", &self.segment2)] {
+        for (field, seg) in [
+            ("segment1.modules", &self.segment1),
+            ("segment2.modules", &self.segment2),
+        ] {
             if seg.modules == 0 || seg.modules > 200 {
                 return Err(bad(field, format!("must be 1..=200, got {}", seg.modules)));
             }
@@ -165,7 +165,11 @@ impl RobotConfig {
         }
         // A segment cannot bend further than its hinges allow.
         let max_bend = |modules: u32| modules as f64 * self.hinge.max_hinge_bend_deg;
-        for (j, modules) in [(0, self.segment1.modules), (1, self.segment1.modules), (2, self.segment2.modules)] {
+        for (j, modules) in [
+            (0, self.segment1.modules),
+            (1, self.segment1.modules),
+            (2, self.segment2.modules),
+        ] {
             let m = self.limits.q_min_deg[j].abs().max(self.limits.q_max_deg[j].abs());
             if m > max_bend(modules) + 1e-9 {
                 return Err(bad(
@@ -184,7 +188,11 @@ impl RobotConfig {
         if self.cables.len() != 2 * N_JOINTS {
             return Err(bad(
                 "cables",
-                format!("need {} cables (an antagonistic pair per joint), got {}", 2 * N_JOINTS, self.cables.len()),
+                format!(
+                    "need {} cables (an antagonistic pair per joint), got {}",
+                    2 * N_JOINTS,
+                    self.cables.len()
+                ),
             ));
         }
         for j in 1..=N_JOINTS {
@@ -201,16 +209,25 @@ impl RobotConfig {
             if !(1..=N_JOINTS).contains(&c.joint) {
                 return Err(bad(&f("joint"), format!("must be 1..={N_JOINTS}, got {}", c.joint)));
             }
-            for (name, v) in [("offset_pitch_mm", c.offset_pitch_mm), ("offset_yaw_mm", c.offset_yaw_mm)] {
+            for (name, v) in [
+                ("offset_pitch_mm", c.offset_pitch_mm),
+                ("offset_yaw_mm", c.offset_yaw_mm),
+            ] {
                 if !v.is_finite() || v.abs() >= self.hinge.module_radius_mm {
                     return Err(bad(
                         &f(name),
-                        format!("must be finite and inside the module radius {} mm, got {v}", self.hinge.module_radius_mm),
+                        format!(
+                            "must be finite and inside the module radius {} mm, got {v}",
+                            self.hinge.module_radius_mm
+                        ),
                     ));
                 }
             }
             if c.joint >= 4 && c.pulley_sign.abs() != 1.0 {
-                return Err(bad(&f("pulley_sign"), format!("forceps cables need ±1, got {}", c.pulley_sign)));
+                return Err(bad(
+                    &f("pulley_sign"),
+                    format!("forceps cables need ±1, got {}", c.pulley_sign),
+                ));
             }
         }
         // Each pair must be antagonistic in its own bend direction, or the joint is not drivable.
@@ -225,7 +242,10 @@ impl RobotConfig {
             if lever.abs() < 1e-6 {
                 return Err(bad(
                     "cables",
-                    format!("the pair of joint {j} ({}, {}) is not antagonistic: it cannot drive the joint", a.name, b.name),
+                    format!(
+                        "the pair of joint {j} ({}, {}) is not antagonistic: it cannot drive the joint",
+                        a.name, b.name
+                    ),
                 ));
             }
         }

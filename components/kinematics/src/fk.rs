@@ -25,10 +25,22 @@ pub fn dh_transform(alpha_prev: f64, a_prev: f64, d: f64, theta: f64) -> nalgebr
     let (st, ct) = theta.sin_cos();
     let (sa, ca) = alpha_prev.sin_cos();
     nalgebra::Matrix4::new(
-        ct, -st, 0.0, a_prev, //
-        st * ca, ct * ca, -sa, -d * sa, //
-        st * sa, ct * sa, ca, d * ca, //
-        0.0, 0.0, 0.0, 1.0,
+        ct,
+        -st,
+        0.0,
+        a_prev, //
+        st * ca,
+        ct * ca,
+        -sa,
+        -d * sa, //
+        st * sa,
+        ct * sa,
+        ca,
+        d * ca, //
+        0.0,
+        0.0,
+        0.0,
+        1.0,
     )
 }
 

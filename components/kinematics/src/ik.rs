@@ -52,13 +52,20 @@ pub enum IkError {
         best_q_deg: [f64; 4],
     },
     #[error("IK solution q{joint} = {value_deg:.2} deg lies outside the joint limits (unreachable pose)")]
-    OutsideLimits { joint: usize, value_deg: f64, q_deg: [f64; 4] },
+    OutsideLimits {
+        joint: usize,
+        value_deg: f64,
+        q_deg: [f64; 4],
+    },
     #[error("IK input is not finite")]
     NotFinite,
 }
 
 /// Pose error target − current: position (mm) and rotation vector (rad), base frame.
-pub fn pose_error(target: &Isometry3<f64>, current: &Isometry3<f64>) -> (nalgebra::Vector3<f64>, nalgebra::Vector3<f64>) {
+pub fn pose_error(
+    target: &Isometry3<f64>,
+    current: &Isometry3<f64>,
+) -> (nalgebra::Vector3<f64>, nalgebra::Vector3<f64>) {
     let dp = target.translation.vector - current.translation.vector;
     let dr = (target.rotation * current.rotation.inverse()).scaled_axis();
     (dp, dr)
@@ -68,7 +75,12 @@ impl Robot {
     /// Solves for (q1, q2, q3, q_yaw) whose end-effector pose is `target`, starting from
     /// `q0_deg` (the paper starts from the command; zeros when `None`). Restarts from a few
     /// fixed seeds if the first start does not converge, so the answer is deterministic.
-    pub fn ik(&self, target: &Isometry3<f64>, q0_deg: Option<[f64; 4]>, opts: &IkOptions) -> Result<IkSolution, IkError> {
+    pub fn ik(
+        &self,
+        target: &Isometry3<f64>,
+        q0_deg: Option<[f64; 4]>,
+        opts: &IkOptions,
+    ) -> Result<IkSolution, IkError> {
         let finite = target.translation.vector.iter().all(|v| v.is_finite())
             && target.rotation.coords.iter().all(|v| v.is_finite());
         if !finite || q0_deg.is_some_and(|q| q.iter().any(|v| !v.is_finite())) {
@@ -94,7 +106,10 @@ impl Robot {
                         total_iterations += iterations;
                     }
                     let better = match (&best, &e) {
-                        (Some(IkError::NotConverged { residual_pos_mm: a, .. }), IkError::NotConverged { residual_pos_mm: b, .. }) => b < a,
+                        (
+                            Some(IkError::NotConverged { residual_pos_mm: a, .. }),
+                            IkError::NotConverged { residual_pos_mm: b, .. },
+                        ) => b < a,
                         _ => true,
                     };
                     if better {
@@ -124,8 +139,18 @@ impl Robot {
         if let Some(margin) = opts.limit_margin_deg {
             let lim = &self.config.limits;
             // q_yaw is bounded by the jaw limits.
-            let lo = [lim.q_min_deg[0], lim.q_min_deg[1], lim.q_min_deg[2], lim.q_min_deg[3].max(lim.q_min_deg[4])];
-            let hi = [lim.q_max_deg[0], lim.q_max_deg[1], lim.q_max_deg[2], lim.q_max_deg[3].min(lim.q_max_deg[4])];
+            let lo = [
+                lim.q_min_deg[0],
+                lim.q_min_deg[1],
+                lim.q_min_deg[2],
+                lim.q_min_deg[3].max(lim.q_min_deg[4]),
+            ];
+            let hi = [
+                lim.q_max_deg[0],
+                lim.q_max_deg[1],
+                lim.q_max_deg[2],
+                lim.q_max_deg[3].min(lim.q_max_deg[4]),
+            ];
             for j in 0..4 {
                 if sol.q_deg[j] < lo[j] - margin || sol.q_deg[j] > hi[j] + margin {
                     return Err(IkError::OutsideLimits {
@@ -142,7 +167,14 @@ impl Robot {
     fn ik_from(&self, target: &Isometry3<f64>, q0_deg: [f64; 4], opts: &IkOptions) -> Result<IkSolution, IkError> {
         let w = opts.rot_weight_mm_per_rad;
         let mut q = Vector4::from_iterator(q0_deg.iter().map(|v| v.to_radians()));
-        let deg = |q: &Vector4<f64>| [q[0].to_degrees(), q[1].to_degrees(), q[2].to_degrees(), q[3].to_degrees()];
+        let deg = |q: &Vector4<f64>| {
+            [
+                q[0].to_degrees(),
+                q[1].to_degrees(),
+                q[2].to_degrees(),
+                q[3].to_degrees(),
+            ]
+        };
         let eval = |q: &Vector4<f64>| {
             let (pose, jac) = self.ee_jacobian(&deg(q));
             let (dp, dr) = pose_error(target, &pose);
@@ -267,7 +299,10 @@ impl Robot {
             let jtj = jv.transpose() * jv;
             let mut accepted = false;
             for _ in 0..10 {
-                let Some(step) = (jtj + nalgebra::Matrix3::identity() * lambda).lu().solve(&(jv.transpose() * e)) else {
+                let Some(step) = (jtj + nalgebra::Matrix3::identity() * lambda)
+                    .lu()
+                    .solve(&(jv.transpose() * e))
+                else {
                     lambda *= 10.0;
                     continue;
                 };

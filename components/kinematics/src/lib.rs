@@ -85,7 +85,10 @@ impl Robot {
         let lim = &self.config.limits;
         for (j, &v) in q_deg.iter().enumerate() {
             if !v.is_finite() {
-                return Err(LimitError::NotFinite { joint: j + 1, value_deg: v });
+                return Err(LimitError::NotFinite {
+                    joint: j + 1,
+                    value_deg: v,
+                });
             }
             if v < lim.q_min_deg[j] || v > lim.q_max_deg[j] {
                 return Err(LimitError::OutOfRange {

@@ -76,15 +76,21 @@ impl MarkerGeometry {
         let y = Vector3::from(g.r1_base_mm) - Vector3::from(g.r0_base_mm);
         let z = Vector3::from(g.b0_base_mm) - Vector3::from(g.r1_base_mm);
         if y.norm() < 1e-6 || z.norm() < 1e-6 || (y.normalize().dot(&z.normalize())).abs() > 1e-6 {
-            return Err(bad("r0/r1/b0_base_mm", "r0→r1 and r1→b0 must be non-zero and perpendicular (eq. 7)".into()));
+            return Err(bad(
+                "r0/r1/b0_base_mm",
+                "r0→r1 and r1→b0 must be non-zero and perpendicular (eq. 7)".into(),
+            ));
         }
         Ok(g)
     }
 
     /// The geometry the repository ships (`configs/markers.toml`, embedded at build time).
     pub fn paper_default() -> Self {
-        Self::parse(include_str!("../../../configs/markers.toml"), Path::new("configs/markers.toml"))
-            .expect("the shipped configs/markers.toml is valid")
+        Self::parse(
+            include_str!("../../../configs/markers.toml"),
+            Path::new("configs/markers.toml"),
+        )
+        .expect("the shipped configs/markers.toml is valid")
     }
 
     fn named(&self) -> [(&'static str, [f64; 3]); N_MARKERS] {

@@ -42,7 +42,8 @@ fn fk_straight_length_equals_table_sum() {
     let expected = r.straight_length_mm();
     // 11 modules × 2 hinges × (l + h) + 8 × (l + h) + wrist + jaw, along +x.
     let c = &r.config;
-    let by_hand = (2.0 * 11.0 + 8.0) * (c.hinge.l_mm + c.hinge.h_mm) + c.forceps.wrist_length_mm + c.forceps.jaw_length_mm;
+    let by_hand =
+        (2.0 * 11.0 + 8.0) * (c.hinge.l_mm + c.hinge.h_mm) + c.forceps.wrist_length_mm + c.forceps.jaw_length_mm;
     assert!((expected - by_hand).abs() < 1e-12);
     let p = fk.ee.translation.vector;
     assert!((p - Vector3::new(expected, 0.0, 0.0)).norm() < 1e-12, "ee at {p:?}");
@@ -59,7 +60,10 @@ fn pitch_bends_in_xz_and_yaw_in_xy() {
     }
     for q3 in [-30.0, 30.0] {
         let p = r.fk(&[0.0, 0.0, q3, 0.0, 0.0]).ee.translation.vector;
-        assert!(p.y.abs() < 1e-9 && p.z.signum() == f64::signum(q3), "segment 2 pitches in x-z: {p:?}");
+        assert!(
+            p.y.abs() < 1e-9 && p.z.signum() == f64::signum(q3),
+            "segment 2 pitches in x-z: {p:?}"
+        );
     }
     for q2 in [-50.0, 20.0] {
         let p = r.fk(&[0.0, q2, 0.0, 0.0, 0.0]).ee.translation.vector;
@@ -110,7 +114,10 @@ fn jaws_mirror_at_opposite_angles() {
         let to_pivot = fk.pivot.inverse();
         let zl = to_pivot.rotation * (fk.jaw_left.rotation * Vector3::z());
         let zr = to_pivot.rotation * (fk.jaw_right.rotation * Vector3::z());
-        assert!((zl - Vector3::new(zr.x, -zr.y, zr.z)).norm() < 1e-12, "{zl:?} vs {zr:?}");
+        assert!(
+            (zl - Vector3::new(zr.x, -zr.y, zr.z)).norm() < 1e-12,
+            "{zl:?} vs {zr:?}"
+        );
         assert!((zl.y + zr.y).abs() < 1e-12 && zl.y.abs() > 0.1);
         // Bisector along the pivot axis when q_yaw = 0.
         let ze = to_pivot.rotation * (fk.ee.rotation * Vector3::z());
@@ -142,7 +149,10 @@ fn jacobian_matches_finite_differences() {
             let w = (pp.rotation * pm.rotation.inverse()).scaled_axis() / h;
             let jv = jac.fixed_view::<3, 1>(0, col).into_owned();
             let jw = jac.fixed_view::<3, 1>(3, col).into_owned();
-            assert!((v - jv).norm() < 1e-5 * (1.0 + v.norm()), "col {col}: fd {v:?} vs {jv:?}");
+            assert!(
+                (v - jv).norm() < 1e-5 * (1.0 + v.norm()),
+                "col {col}: fd {v:?} vs {jv:?}"
+            );
             assert!((w - jw).norm() < 1e-7, "col {col}: fd {w:?} vs {jw:?}");
         }
     }
@@ -158,7 +168,9 @@ fn ik_round_trip_1000_random_configurations() {
     for i in 0..1000 {
         let q = random_q(&r, &mut rng);
         let target = r.fk(&q).ee;
-        let sol = r.ik(&target, None, &opts).unwrap_or_else(|e| panic!("config {i} {q:?}: {e}"));
+        let sol = r
+            .ik(&target, None, &opts)
+            .unwrap_or_else(|e| panic!("config {i} {q:?}: {e}"));
         let reached = r.ee_pose_reduced(&sol.q_deg);
         let (dp, dr) = pose_error(&target, &reached);
         worst_pos = worst_pos.max(dp.norm());
@@ -167,7 +179,11 @@ fn ik_round_trip_1000_random_configurations() {
         // The pose determines the configuration: IK recovers q (q_yaw for the jaws).
         let q_yaw = 0.5 * (q[3] + q[4]);
         for (j, want) in [q[0], q[1], q[2], q_yaw].iter().enumerate() {
-            assert!((sol.q_deg[j] - want).abs() < 1e-6, "config {i} joint {j}: {} vs {want}", sol.q_deg[j]);
+            assert!(
+                (sol.q_deg[j] - want).abs() < 1e-6,
+                "config {i} joint {j}: {} vs {want}",
+                sol.q_deg[j]
+            );
         }
     }
     eprintln!("IK round trip worst: {worst_pos:.3e} mm, {worst_rot:.3e} rad");
@@ -192,7 +208,10 @@ fn ik_reports_unreachable_poses() {
     cfg.hinge.max_hinge_bend_deg = 10.0;
     let wide = Robot::new(cfg);
     let target = wide.fk(&[68.0, 0.0, 0.0, 0.0, 0.0]).ee;
-    assert!(matches!(r.ik(&target, None, &opts), Err(IkError::OutsideLimits { joint: 1, .. })));
+    assert!(matches!(
+        r.ik(&target, None, &opts),
+        Err(IkError::OutsideLimits { joint: 1, .. })
+    ));
     // NaN in, error out.
     let nan = Isometry3::from_parts(Translation3::new(f64::NAN, 0.0, 0.0), UnitQuaternion::identity());
     assert_eq!(r.ik(&nan, None, &opts).unwrap_err(), IkError::NotFinite);
@@ -226,7 +245,13 @@ fn eq5_antagonistic_pairs_and_decoupling() {
         let mut q = [0.0; N_JOINTS];
         q[j] = 20.0;
         let w = r.cables().displacements_mm(&q);
-        assert!(w[*a] > 0.0 && w[*b] < 0.0, "joint {}: pair ({a},{b}) = {} {}", j + 1, w[*a], w[*b]);
+        assert!(
+            w[*a] > 0.0 && w[*b] < 0.0,
+            "joint {}: pair ({a},{b}) = {} {}",
+            j + 1,
+            w[*a],
+            w[*b]
+        );
         q[j] = -20.0;
         let w = r.cables().displacements_mm(&q);
         assert!(w[*a] < 0.0 && w[*b] > 0.0);
@@ -274,13 +299,22 @@ fn limits_and_config_errors_name_the_field() {
     let text = include_str!("../../../configs/robot.toml");
     let p = std::path::Path::new("robot.toml");
     let broken = text.replace("h_mm = 0.5", "h_mm = -0.5");
-    let e = bowden_kinematics::RobotConfig::parse(&broken, p).unwrap_err().to_string();
+    let e = bowden_kinematics::RobotConfig::parse(&broken, p)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("robot.toml") && e.contains("hinge.h_mm"), "{e}");
-    let e = bowden_kinematics::RobotConfig::parse("name = 3", p).unwrap_err().to_string();
+    let e = bowden_kinematics::RobotConfig::parse("name = 3", p)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("robot.toml") && e.contains("malformed"), "{e}");
     let broken = text.replace("modules = 11", "modules = 11\nhinges = 3");
-    assert!(bowden_kinematics::RobotConfig::parse(&broken, p).is_err(), "unknown fields are refused");
-    let e = bowden_kinematics::RobotConfig::load("/nonexistent/robot.toml").unwrap_err().to_string();
+    assert!(
+        bowden_kinematics::RobotConfig::parse(&broken, p).is_err(),
+        "unknown fields are refused"
+    );
+    let e = bowden_kinematics::RobotConfig::load("/nonexistent/robot.toml")
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("/nonexistent/robot.toml"), "{e}");
 }
 
@@ -327,7 +361,10 @@ fn position_ik_with_fixed_yaw_recovers_the_configuration() {
             assert!((sol.q_deg[j] - q[j]).abs() < 1e-9, "{:?} vs {q:?}", sol.q_deg);
         }
     }
-    assert!(recovered >= 270, "only {recovered}/300 recovered from a 3-degree-off start");
+    assert!(
+        recovered >= 270,
+        "only {recovered}/300 recovered from a 3-degree-off start"
+    );
     let far = Point3::new(400.0, 0.0, 0.0);
     assert!(r.ik_position(&far, 0.0, [0.0; 3], &opts).is_err());
 }

@@ -314,17 +314,16 @@ impl TrajectorySpec {
         for (i, p) in dense.iter().enumerate() {
             let s = i as f64 / last;
             // q_yaw from its profile; start from the previous point (continuity).
-            let sol =
-                robot
-                    .ik_position(p, self.q_yaw.at(s), c_bend_guess(robot, p), &opts)
-                    .map_err(|e| TrajectoryError::Unreachable {
-                        path: path.to_path_buf(),
-                        index: i,
-                        x: p.x,
-                        y: p.y,
-                        z: p.z,
-                        reason: e.to_string(),
-                    })?;
+            let sol = robot
+                .ik_position(p, self.q_yaw.at(s), c_bend_guess(robot, p), &opts)
+                .map_err(|e| TrajectoryError::Unreachable {
+                    path: path.to_path_buf(),
+                    index: i,
+                    x: p.x,
+                    y: p.y,
+                    z: p.z,
+                    reason: e.to_string(),
+                })?;
             let half = 0.5 * self.jaw_opening.at(s);
             let q = [
                 sol.q_deg[0],
@@ -470,7 +469,12 @@ mod tests {
             for q in &t.q_deg {
                 robot.check_limits(q).unwrap();
                 for j in 0..5 {
-                    assert!(q[j].abs() <= 0.8 * reach[j], "{name}: q{} = {:.1} beyond reach", j + 1, q[j]);
+                    assert!(
+                        q[j].abs() <= 0.8 * reach[j],
+                        "{name}: q{} = {:.1} beyond reach",
+                        j + 1,
+                        q[j]
+                    );
                 }
             }
         }
