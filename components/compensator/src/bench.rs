@@ -1,0 +1,524 @@
+//! The engine of `bowden bench compensate`: latency percentiles of one compensation step per
+//! mode over a seeded trajectory, side by side with the naive approach (tract's full
+//! evaluation for every trial) in the same run.
+
+use crate::compensator::{Compensator, CompensatorError, StepOutput};
+use crate::config::{ControllerConfig, EvaluatorChoice, Mode};
+use crate::contract::Direction;
+use crate::model::{LoadOptions, Model};
+use crate::refine::StopReason;
+use bowden_kinematics::{Robot, N_JOINTS};
+use hdrhistogram::Histogram;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// How the targets move.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Scenario {
+    /// One dataset step (3·√5 deg) per call, as eq. (16): every step appends a history entry,
+    /// so both models' prefixes change every step (the worst case).
+    DatasetStep,
+    /// A finely commanded path (`fine_deg_per_step`, e.g. 60 deg/s at 1 kHz): the history
+    /// changes only every ~100 steps (the normal case at the robot).
+    Fine,
+}
+
+impl Scenario {
+    pub fn name(self) -> &'static str {
+        match self {
+            Scenario::DatasetStep => "dataset-step",
+            Scenario::Fine => "fine",
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct BenchOptions {
+    /// Steps measured per (scenario, mode) with the incremental evaluator.
+    pub steps: usize,
+    /// Steps measured for the naive tract loop (paper mode).
+    pub naive_steps: usize,
+    pub seed: u64,
+    /// Joint-space distance per call in the `fine` scenario, deg.
+    pub fine_deg_per_step: f64,
+    pub scenarios: Vec<Scenario>,
+    /// Models, refinement settings and history rule come from here; the bench disables the
+    /// time budget so every step runs its full iteration count.
+    pub config: ControllerConfig,
+}
+
+/// Percentiles of one configuration.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Latency {
+    pub scenario: Scenario,
+    pub mode: Mode,
+    /// `incremental` or `tract` (naive).
+    pub evaluator: &'static str,
+    /// True when the prefix update ran in `Compensator::prepare` after each step (off the
+    /// target → command path) instead of at the start of the next step; its own percentiles
+    /// are in `prepare_*`.
+    pub prepare_split: bool,
+    pub prepare_p50_ns: u64,
+    pub prepare_p999_ns: u64,
+    pub prepare_max_ns: u64,
+    pub steps: u64,
+    pub p50_ns: u64,
+    pub p99_ns: u64,
+    pub p999_ns: u64,
+    pub max_ns: u64,
+    pub mean_ns: f64,
+    pub mean_forward_evals: f64,
+    pub max_forward_evals: u32,
+    /// Fraction of steps after which the history changed (prefix recomputed next step).
+    pub history_change_fraction: f64,
+    /// Fraction of steps whose refinement stopped at the threshold / tolerance.
+    pub threshold_fraction: f64,
+}
+
+/// Naive / incremental, paper mode, same scenario.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Ratio {
+    pub scenario: Scenario,
+    pub p50: f64,
+    pub mean: f64,
+    pub p999: f64,
+}
+
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct BenchReport {
+    pub model_fwd: String,
+    pub model_inv: String,
+    pub paper_iterations: u32,
+    pub rows: Vec<Latency>,
+    pub ratios: Vec<Ratio>,
+}
+
+/// eq. (16): random waypoints within 80 % of the joint limits (jaws not crossing), joined by
+/// points `spacing_deg` apart in joint space.
+pub fn random_trajectory(robot: &Robot, n: usize, spacing_deg: f64, seed: u64) -> Vec<[f64; N_JOINTS]> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let lim = &robot.config.limits;
+    let mut waypoint = || {
+        let mut q = [0.0; N_JOINTS];
+        for (c, v) in q.iter_mut().enumerate() {
+            *v = rng.random_range(0.8 * lim.q_min_deg[c]..0.8 * lim.q_max_deg[c]);
+        }
+        if q[4] < q[3] {
+            q.swap(3, 4);
+        }
+        robot.clamp_to_limits(&q)
+    };
+    let mut out = Vec::with_capacity(n);
+    let mut a = [0.0; N_JOINTS];
+    while out.len() < n {
+        let b = waypoint();
+        let d = (0..N_JOINTS).map(|c| (b[c] - a[c]).powi(2)).sum::<f64>().sqrt();
+        let k_max = (d / spacing_deg).floor() as usize;
+        for k in 0..=k_max {
+            if out.len() == n {
+                break;
+            }
+            let f = if d > 0.0 { k as f64 * spacing_deg / d } else { 0.0 };
+            let mut q = [0.0; N_JOINTS];
+            for c in 0..N_JOINTS {
+                q[c] = a[c] + f * (b[c] - a[c]);
+            }
+            out.push(q);
+        }
+        a = b;
+    }
+    out
+}
+
+#[allow(clippy::too_many_arguments)]
+fn measure(
+    comp: &mut Compensator,
+    targets: &[[f64; N_JOINTS]],
+    warmup: usize,
+    steps: usize,
+    scenario: Scenario,
+    evaluator: &'static str,
+    split: bool,
+    progress: &mut dyn FnMut(u64),
+) -> Latency {
+    let mut h = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3).expect("valid bounds");
+    let mut hp = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3).expect("valid bounds");
+    let mut out = StepOutput::default();
+    let (mut evals, mut max_evals, mut changes, mut thr) = (0u64, 0u32, 0u64, 0u64);
+    comp.reset();
+    for i in 0..warmup + steps {
+        let t = &targets[i % targets.len()];
+        // Targets come from the generator: always valid.
+        let _ = comp.step(t, &mut out);
+        let mut prep_ns = 0;
+        if split {
+            let t0 = std::time::Instant::now();
+            comp.prepare();
+            prep_ns = t0.elapsed().as_nanos() as u64;
+        }
+        if i >= warmup {
+            h.saturating_record(out.elapsed_ns.max(1));
+            if split {
+                hp.saturating_record(prep_ns.max(1));
+            }
+            evals += out.forward_evals as u64;
+            max_evals = max_evals.max(out.forward_evals);
+            changes += (out.history_appended > 0) as u64;
+            thr += (out.stop_reason == StopReason::Threshold) as u64;
+            progress(1);
+        }
+    }
+    let n = steps.max(1) as f64;
+    Latency {
+        scenario,
+        mode: comp.mode(),
+        evaluator,
+        prepare_split: split,
+        prepare_p50_ns: if split { hp.value_at_quantile(0.5) } else { 0 },
+        prepare_p999_ns: if split { hp.value_at_quantile(0.999) } else { 0 },
+        prepare_max_ns: if split { hp.max() } else { 0 },
+        steps: h.len(),
+        p50_ns: h.value_at_quantile(0.5),
+        p99_ns: h.value_at_quantile(0.99),
+        p999_ns: h.value_at_quantile(0.999),
+        max_ns: h.max(),
+        mean_ns: h.mean(),
+        mean_forward_evals: evals as f64 / n,
+        max_forward_evals: max_evals,
+        history_change_fraction: changes as f64 / n,
+        threshold_fraction: thr as f64 / n,
+    }
+}
+
+fn load(cfg: &ControllerConfig, field: &'static str, dir: Direction) -> Result<(Model, String), CompensatorError> {
+    let p = match (field, &cfg.model_fwd, &cfg.model_inv) {
+        ("model_fwd", Some(p), _) | ("model_inv", _, Some(p)) => p.clone(),
+        _ => {
+            return Err(CompensatorError::MissingModel {
+                mode: Mode::Paper,
+                which: if dir == Direction::Forward {
+                    "a forward"
+                } else {
+                    "an inverse"
+                },
+                field,
+            })
+        }
+    };
+    let path = cfg.resolve_model_path(field, &p)?;
+    let m = Model::load_with(
+        &path,
+        &LoadOptions {
+            check_windows: cfg.load_check.windows,
+            tolerance_deg: cfg.load_check.tolerance_deg,
+            ..LoadOptions::default()
+        },
+    )?;
+    Ok((m, path.display().to_string()))
+}
+
+/// Total steps `run` will report through `progress` (for a progress bar).
+pub fn total_steps(opts: &BenchOptions) -> u64 {
+    (opts.scenarios.len() * ((Mode::ALL.len() + 2) * opts.steps + opts.naive_steps)) as u64
+}
+
+/// Runs every scenario × mode with the incremental evaluator, and paper mode with the naive
+/// tract loop, in this process, one after the other.
+pub fn run(opts: &BenchOptions, robot: &Robot, progress: &mut dyn FnMut(u64)) -> Result<BenchReport, CompensatorError> {
+    let (fwd, fwd_name) = load(&opts.config, "model_fwd", Direction::Forward)?;
+    let (inv, inv_name) = load(&opts.config, "model_inv", Direction::Inverse)?;
+    let mut cfg = opts.config.clone();
+    cfg.budget.budget_ns = 0;
+    let mut rows = Vec::new();
+    let mut ratios = Vec::new();
+    for &scenario in &opts.scenarios {
+        let spacing = match scenario {
+            Scenario::DatasetStep => cfg.history.step_deg,
+            Scenario::Fine => opts.fine_deg_per_step,
+        };
+        let n_targets = (opts.steps + 2000).min(400_000);
+        let targets = random_trajectory(robot, n_targets, spacing, opts.seed);
+        let mut paper_inc = None;
+        let runs = Mode::ALL
+            .into_iter()
+            .map(|m| (m, false))
+            .chain([(Mode::Paper, true), (Mode::Newton, true)]);
+        for (mode, split) in runs {
+            let mut c = cfg.clone();
+            c.mode = mode;
+            c.evaluator = EvaluatorChoice::Auto;
+            let mut comp = Compensator::from_models(&c, robot, Some(fwd.clone()), Some(inv.clone()))?;
+            let lat = measure(
+                &mut comp,
+                &targets,
+                1000,
+                opts.steps,
+                scenario,
+                "incremental",
+                split,
+                progress,
+            );
+            if mode == Mode::Paper && !split {
+                paper_inc = Some(lat.clone());
+            }
+            rows.push(lat);
+        }
+        let mut c = cfg.clone();
+        c.mode = Mode::Paper;
+        c.evaluator = EvaluatorChoice::Tract;
+        let mut comp = Compensator::from_models(&c, robot, Some(fwd.clone()), Some(inv.clone()))?;
+        let naive = measure(
+            &mut comp,
+            &targets,
+            10,
+            opts.naive_steps,
+            scenario,
+            "tract",
+            false,
+            progress,
+        );
+        if let Some(p) = paper_inc {
+            ratios.push(Ratio {
+                scenario,
+                p50: naive.p50_ns as f64 / p.p50_ns.max(1) as f64,
+                mean: naive.mean_ns / p.mean_ns.max(1.0),
+                p999: naive.p999_ns as f64 / p.p999_ns.max(1) as f64,
+            });
+        }
+        rows.push(naive);
+    }
+    Ok(BenchReport {
+        model_fwd: fwd_name,
+        model_inv: inv_name,
+        paper_iterations: cfg.paper.iterations,
+        rows,
+        ratios,
+    })
+}
+
+/// A plot that could not be written.
+#[derive(Debug, thiserror::Error)]
+#[error("{path}: cannot write the plot: {message}")]
+pub struct PlotError {
+    pub path: String,
+    pub message: String,
+}
+
+impl BenchReport {
+    /// Latency percentiles per configuration on a log axis (SVG): p50 ●, p99 ▲, p99.9 ✕, max ·.
+    pub fn write_svg(&self, path: &std::path::Path) -> Result<(), PlotError> {
+        use plotters::prelude::*;
+        let err = |e: &dyn std::fmt::Display| PlotError {
+            path: path.display().to_string(),
+            message: e.to_string(),
+        };
+        let n = self.rows.len();
+        let label = |r: &Latency| {
+            format!(
+                "{} · {} · {}{}",
+                r.scenario.name(),
+                r.mode,
+                r.evaluator,
+                if r.prepare_split { " (prepare split)" } else { "" }
+            )
+        };
+        let labels: Vec<String> = self.rows.iter().map(label).collect();
+        let root = SVGBackend::new(path, (1100, 90 + 34 * n as u32)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| err(&e))?;
+        let us = |ns: u64| (ns.max(1) as f64) / 1000.0;
+        let x_max = self.rows.iter().map(|r| us(r.max_ns)).fold(1.0, f64::max) * 2.0;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(
+                format!("Compensation step latency (paper mode M = {})", self.paper_iterations),
+                ("sans-serif", 20),
+            )
+            .margin(10)
+            .x_label_area_size(40)
+            .y_label_area_size(330)
+            .build_cartesian_2d((0.05f64..x_max).log_scale(), -0.5f64..(n as f64 - 0.5))
+            .map_err(|e| err(&e))?;
+        chart
+            .configure_mesh()
+            .x_desc("µs per step (log)")
+            .y_labels(n)
+            .y_label_formatter(&|y| {
+                let i = y.round();
+                if (y - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < n {
+                    labels[i as usize].clone()
+                } else {
+                    String::new()
+                }
+            })
+            .draw()
+            .map_err(|e| err(&e))?;
+        let pts = |f: &dyn Fn(&Latency) -> u64| -> Vec<(f64, f64)> {
+            self.rows
+                .iter()
+                .enumerate()
+                .map(|(i, r)| (us(f(r)), i as f64))
+                .collect()
+        };
+        chart
+            .draw_series(pts(&|r| r.p50_ns).into_iter().map(|p| Circle::new(p, 5, BLUE.filled())))
+            .map_err(|e| err(&e))?
+            .label("p50")
+            .legend(|(x, y)| Circle::new((x, y), 5, BLUE.filled()));
+        chart
+            .draw_series(
+                pts(&|r| r.p99_ns)
+                    .into_iter()
+                    .map(|p| TriangleMarker::new(p, 6, GREEN.filled())),
+            )
+            .map_err(|e| err(&e))?
+            .label("p99")
+            .legend(|(x, y)| TriangleMarker::new((x, y), 6, GREEN.filled()));
+        chart
+            .draw_series(
+                pts(&|r| r.p999_ns)
+                    .into_iter()
+                    .map(|p| Cross::new(p, 6, RED.stroke_width(2))),
+            )
+            .map_err(|e| err(&e))?
+            .label("p99.9")
+            .legend(|(x, y)| Cross::new((x, y), 6, RED.stroke_width(2)));
+        chart
+            .draw_series(
+                pts(&|r| r.max_ns)
+                    .into_iter()
+                    .map(|p| Circle::new(p, 2, BLACK.filled())),
+            )
+            .map_err(|e| err(&e))?
+            .label("max")
+            .legend(|(x, y)| Circle::new((x, y), 2, BLACK.filled()));
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(|e| err(&e))?;
+        root.present().map_err(|e| err(&e))?;
+        Ok(())
+    }
+
+    /// Markdown table of the rows and the ratios.
+    pub fn to_markdown(&self) -> String {
+        let us = |ns: u64| format!("{:.2}", ns as f64 / 1000.0);
+        let mut s = format!(
+            "forward model: {}\ninverse model: {}\n(paper mode: M = {}; time budget disabled)\n\n",
+            self.model_fwd, self.model_inv, self.paper_iterations
+        );
+        s += "| scenario | mode | evaluator | steps | p50 µs | p99 µs | p99.9 µs | max µs | mean µs | fwd evals (mean/max) | history changes | at threshold | prepare p50 / p99.9 / max µs |\n";
+        s += "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
+        for r in &self.rows {
+            let prep = if r.prepare_split {
+                format!(
+                    "{} / {} / {}",
+                    us(r.prepare_p50_ns),
+                    us(r.prepare_p999_ns),
+                    us(r.prepare_max_ns)
+                )
+            } else {
+                "in step".to_string()
+            };
+            s += &format!(
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {:.1}/{} | {:.1} % | {:.1} % | {} |\n",
+                r.scenario.name(),
+                r.mode,
+                r.evaluator,
+                r.steps,
+                us(r.p50_ns),
+                us(r.p99_ns),
+                us(r.p999_ns),
+                us(r.max_ns),
+                r.mean_ns / 1000.0,
+                r.mean_forward_evals,
+                r.max_forward_evals,
+                100.0 * r.history_change_fraction,
+                100.0 * r.threshold_fraction,
+                prep,
+            );
+        }
+        s += "\n| scenario | naive tract / incremental (paper mode): p50 | mean | p99.9 |\n|---|---:|---:|---:|\n";
+        for r in &self.ratios {
+            s += &format!(
+                "| {} | {:.0}× | {:.0}× | {:.0}× |\n",
+                r.scenario.name(),
+                r.p50,
+                r.mean,
+                r.p999
+            );
+        }
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn report_renders_as_markdown_and_svg() {
+        let row = |mode, evaluator, p50| Latency {
+            scenario: Scenario::Fine,
+            mode,
+            evaluator,
+            prepare_split: false,
+            prepare_p50_ns: 0,
+            prepare_p999_ns: 0,
+            prepare_max_ns: 0,
+            steps: 10,
+            p50_ns: p50,
+            p99_ns: 2 * p50,
+            p999_ns: 3 * p50,
+            max_ns: 4 * p50,
+            mean_ns: p50 as f64,
+            mean_forward_evals: 51.0,
+            max_forward_evals: 51,
+            history_change_fraction: 0.01,
+            threshold_fraction: 0.0,
+        };
+        let r = BenchReport {
+            model_fwd: "f.onnx".into(),
+            model_inv: "i.onnx".into(),
+            paper_iterations: 50,
+            rows: vec![
+                row(Mode::Paper, "incremental", 10_000),
+                row(Mode::Paper, "tract", 2_000_000),
+            ],
+            ratios: vec![Ratio {
+                scenario: Scenario::Fine,
+                p50: 200.0,
+                mean: 200.0,
+                p999: 200.0,
+            }],
+        };
+        let md = r.to_markdown();
+        assert!(
+            md.contains("| fine | paper | tract | 10 | 2000.00 |") && md.contains("200×"),
+            "{md}"
+        );
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("lat.svg");
+        r.write_svg(&p).unwrap();
+        let svg = std::fs::read_to_string(&p).unwrap();
+        assert!(svg.starts_with("<svg") && svg.contains("p99.9") && svg.contains("fine · paper · tract"));
+    }
+
+    #[test]
+    fn trajectory_is_eq16_spaced_and_within_limits() {
+        let robot = Robot::paper_default();
+        let step = 3.0 * 5f64.sqrt();
+        let t = random_trajectory(&robot, 500, step, 1);
+        assert_eq!(t.len(), 500);
+        assert_eq!(t, random_trajectory(&robot, 500, step, 1), "seeded");
+        let mut exact = 0;
+        for w in t.windows(2) {
+            let d = (0..N_JOINTS).map(|c| (w[1][c] - w[0][c]).powi(2)).sum::<f64>().sqrt();
+            assert!(d <= step + 1e-9);
+            exact += ((d - step).abs() < 1e-9) as usize;
+        }
+        assert!(exact > 400, "most consecutive targets are one step apart ({exact})");
+        assert!(t.iter().all(|q| robot.check_limits(q).is_ok()));
+    }
+}

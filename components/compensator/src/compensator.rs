@@ -1,0 +1,512 @@
+//! The compensation step: q_desired(t) → q_cmd(t), bounded in time and allocation-free.
+
+use crate::config::{ConfigError, ControllerConfig, EvaluatorChoice, Mode};
+use crate::contract::{Direction, MAX_JOINTS};
+use crate::history::History;
+use crate::model::{Evaluator, LoadOptions, Model, ModelError};
+use crate::refine::{newton_refine, paper_refine, NewtonParams, PaperParams, RefineResult, StopReason, WindowModel};
+use bowden_kinematics::{Robot, N_JOINTS};
+use std::time::Instant;
+
+/// Why a compensator cannot be built or switched.
+#[derive(Debug, thiserror::Error)]
+pub enum CompensatorError {
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    #[error("mode `{mode}` needs {which} model, but the config has no `{field}`")]
+    MissingModel {
+        mode: Mode,
+        which: &'static str,
+        field: &'static str,
+    },
+    #[error("{path}: {what}")]
+    Mismatch { path: String, what: String },
+}
+
+/// A rejected target (the step holds the last command and counts it).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum StepError {
+    #[error("target has {found} joints, expected {expected}")]
+    WrongLength { expected: usize, found: usize },
+    #[error("target q{joint} = {value} deg is not finite")]
+    NotFinite { joint: usize, value: f64 },
+}
+
+/// The result of one [`Compensator::step`]. Arrays hold `joints` used entries.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepOutput {
+    pub joints: usize,
+    pub mode: Mode,
+    pub q_desired_deg: [f64; MAX_JOINTS],
+    /// The command to send (after rate and joint limits).
+    pub q_cmd_deg: [f64; MAX_JOINTS],
+    /// The refinement's result before the output limits.
+    pub q_refined_deg: [f64; MAX_JOINTS],
+    /// Forward-model prediction of the physical angles at `q_cmd_deg` (zeros without a
+    /// forward model).
+    pub q_predicted_deg: [f64; MAX_JOINTS],
+    pub has_prediction: bool,
+    /// max_j |q_predicted − q_desired| (NaN without a forward model).
+    pub loss_max_abs_deg: f64,
+    /// Refinement iterations.
+    pub iterations: u32,
+    /// Forward-model evaluations this step (refinement plus the prediction at q_cmd).
+    pub forward_evals: u32,
+    pub stop_reason: StopReason,
+    /// Wall time of the step, ns (a measurement; it never changes the result unless a
+    /// budget is set).
+    pub elapsed_ns: u64,
+    pub rate_limited: bool,
+    pub joint_limited: bool,
+    /// History entries appended after this step (0 most cycles at 1 kHz).
+    pub history_appended: u32,
+}
+
+impl Default for StepOutput {
+    fn default() -> Self {
+        Self {
+            joints: 0,
+            mode: Mode::Uncalibrated,
+            q_desired_deg: [0.0; MAX_JOINTS],
+            q_cmd_deg: [0.0; MAX_JOINTS],
+            q_refined_deg: [0.0; MAX_JOINTS],
+            q_predicted_deg: [0.0; MAX_JOINTS],
+            has_prediction: false,
+            loss_max_abs_deg: f64::NAN,
+            iterations: 0,
+            forward_evals: 0,
+            stop_reason: StopReason::None,
+            elapsed_ns: 0,
+            rate_limited: false,
+            joint_limited: false,
+            history_appended: 0,
+        }
+    }
+}
+
+impl StepOutput {
+    /// Copies the result into a `JointCommand` sample (the header is the caller's).
+    pub fn fill_joint_command(&self, cmd: &mut bowden_interfaces::JointCommand) {
+        cmd.n_joints = self.joints as u32;
+        cmd.mode = self.mode.to_interface() as u32;
+        cmd.q_cmd_deg = self.q_cmd_deg;
+        cmd.q_desired_deg = self.q_desired_deg;
+        cmd.q_predicted_deg = self.q_predicted_deg;
+        cmd.iterations = self.iterations;
+        cmd.stop_reason = self.stop_reason.code();
+        cmd.compute_ns = self.elapsed_ns;
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Prefix {
+    Valid,
+    Shift,
+    Full,
+}
+
+/// The compensator of one robot: models, histories, refinement settings, output limits.
+pub struct Compensator {
+    mode: Mode,
+    j: usize,
+    fwd: Option<Evaluator>,
+    inv: Option<Evaluator>,
+    fwd_l: usize,
+    inv_l: usize,
+    fwd_prefix: Prefix,
+    inv_prefix: Prefix,
+    history: History,
+    paper: PaperParams,
+    newton: NewtonParams,
+    budget_ns: u64,
+    robot: Robot,
+    joint_limits: bool,
+    rate_limit_deg_s: f64,
+    period_ns: u64,
+    last_sent: [f64; MAX_JOINTS],
+    has_last: bool,
+    rejected: u64,
+    fwd_path: Option<String>,
+    inv_path: Option<String>,
+}
+
+impl std::fmt::Debug for Compensator {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Compensator")
+            .field("mode", &self.mode)
+            .field("joints", &self.j)
+            .field("fwd", &self.fwd_path)
+            .field("inv", &self.inv_path)
+            .finish()
+    }
+}
+
+fn load_model(
+    cfg: &ControllerConfig,
+    field: &'static str,
+    p: &std::path::Path,
+    dir: Direction,
+    j: usize,
+) -> Result<(Model, String), CompensatorError> {
+    let path = cfg.resolve_model_path(field, p)?;
+    let opts = LoadOptions {
+        check_windows: cfg.load_check.windows,
+        tolerance_deg: cfg.load_check.tolerance_deg,
+        ..LoadOptions::default()
+    };
+    let m = Model::load_with(&path, &opts)?;
+    let name = path.display().to_string();
+    if m.metadata().direction != dir {
+        return Err(CompensatorError::Mismatch {
+            path: name,
+            what: format!(
+                "`{field}` must be a {dir} model, the file's metadata says direction = {}",
+                m.metadata().direction
+            ),
+        });
+    }
+    if m.joints() != j {
+        return Err(CompensatorError::Mismatch {
+            path: name,
+            what: format!("the model has {} joints, the robot {j}", m.joints()),
+        });
+    }
+    Ok((m, name))
+}
+
+impl Compensator {
+    /// Builds the compensator: loads and checks the models the config names (none are needed
+    /// for `uncalibrated`), sizes every buffer. After this, [`Self::step`] never allocates.
+    pub fn from_config(cfg: &ControllerConfig, robot: &Robot) -> Result<Self, CompensatorError> {
+        cfg.validate()?;
+        let j = N_JOINTS;
+        let fwd = match &cfg.model_fwd {
+            Some(p) => Some(load_model(cfg, "model_fwd", p, Direction::Forward, j)?),
+            None => None,
+        };
+        let inv = match &cfg.model_inv {
+            Some(p) => Some(load_model(cfg, "model_inv", p, Direction::Inverse, j)?),
+            None => None,
+        };
+        Self::from_models(cfg, robot, fwd.map(|(m, _)| m), inv.map(|(m, _)| m))
+    }
+
+    /// Builds the compensator from already loaded models (the config's model paths are
+    /// ignored).
+    pub fn from_models(
+        cfg: &ControllerConfig,
+        robot: &Robot,
+        fwd: Option<Model>,
+        inv: Option<Model>,
+    ) -> Result<Self, CompensatorError> {
+        cfg.validate()?;
+        let j = N_JOINTS;
+        for (m, dir) in [(&fwd, Direction::Forward), (&inv, Direction::Inverse)] {
+            if let Some(m) = m {
+                if m.metadata().direction != dir || m.joints() != j {
+                    return Err(CompensatorError::Mismatch {
+                        path: m.path().to_string(),
+                        what: format!(
+                            "expected a {dir} model with {j} joints, found a {} model with {}",
+                            m.metadata().direction,
+                            m.joints()
+                        ),
+                    });
+                }
+            }
+        }
+        let evaluator = |m: &Model| match cfg.evaluator {
+            EvaluatorChoice::Auto => m.evaluator(),
+            EvaluatorChoice::Tract => Evaluator::Tract(Box::new(m.tract_evaluator())),
+        };
+        let fwd_l = fwd.as_ref().map(|m| m.seq_len()).unwrap_or(1);
+        let inv_l = inv.as_ref().map(|m| m.seq_len()).unwrap_or(1);
+        let rows = fwd_l.max(inv_l) - 1;
+        let mut c = Self {
+            mode: Mode::Uncalibrated,
+            j,
+            fwd_path: fwd.as_ref().map(|m| m.path().to_string()),
+            inv_path: inv.as_ref().map(|m| m.path().to_string()),
+            fwd: fwd.as_ref().map(evaluator),
+            inv: inv.as_ref().map(evaluator),
+            fwd_l,
+            inv_l,
+            fwd_prefix: Prefix::Full,
+            inv_prefix: Prefix::Full,
+            history: History::new(cfg.history_rule(), j, rows),
+            paper: cfg.paper,
+            newton: cfg.newton,
+            budget_ns: cfg.budget.budget_ns,
+            robot: robot.clone(),
+            joint_limits: cfg.output.joint_limits,
+            rate_limit_deg_s: cfg.output.rate_limit_deg_s,
+            period_ns: cfg.output.period_ns,
+            last_sent: [0.0; MAX_JOINTS],
+            has_last: false,
+            rejected: 0,
+        };
+        c.set_mode(cfg.mode)?;
+        Ok(c)
+    }
+
+    pub fn mode(&self) -> Mode {
+        self.mode
+    }
+
+    /// Switches mode; refuses a mode whose models are not loaded.
+    pub fn set_mode(&mut self, mode: Mode) -> Result<(), CompensatorError> {
+        let (need_fwd, need_inv) = mode.needs_models(self.newton.init_from_inverse);
+        if need_fwd && self.fwd.is_none() {
+            return Err(CompensatorError::MissingModel {
+                mode,
+                which: "a forward",
+                field: "model_fwd",
+            });
+        }
+        if need_inv && self.inv.is_none() {
+            return Err(CompensatorError::MissingModel {
+                mode,
+                which: "an inverse",
+                field: "model_inv",
+            });
+        }
+        self.mode = mode;
+        Ok(())
+    }
+
+    pub fn joints(&self) -> usize {
+        self.j
+    }
+    /// Targets rejected so far (wrong length, NaN/inf).
+    pub fn rejected_inputs(&self) -> u64 {
+        self.rejected
+    }
+    /// Whether each loaded model runs on the incremental evaluator.
+    pub fn incremental(&self) -> (Option<bool>, Option<bool>) {
+        (
+            self.fwd.as_ref().map(|e| e.is_incremental()),
+            self.inv.as_ref().map(|e| e.is_incremental()),
+        )
+    }
+    /// Overrides the time budget (0 = none, for lockstep).
+    pub fn set_budget_ns(&mut self, budget_ns: u64) {
+        self.budget_ns = budget_ns;
+    }
+    /// Overrides the control period the rate limit assumes.
+    pub fn set_period_ns(&mut self, period_ns: u64) {
+        self.period_ns = period_ns;
+    }
+    pub fn history(&self) -> &History {
+        &self.history
+    }
+
+    /// Forgets the histories (back to zero padding) and the last command.
+    pub fn reset(&mut self) {
+        self.history.reset();
+        self.fwd_prefix = Prefix::Full;
+        self.inv_prefix = Prefix::Full;
+        self.has_last = false;
+        self.last_sent = [0.0; MAX_JOINTS];
+    }
+
+    /// Does now the window-prefix work the next [`Self::step`] would otherwise start with
+    /// (after a history entry was appended). A runtime can call it right after publishing
+    /// the command, which takes that work off the target → command path; calling it is
+    /// optional and never changes results. Allocation-free.
+    pub fn prepare(&mut self) {
+        self.sync_prefixes();
+    }
+
+    /// True when the next step will first recompute (part of) a model's window prefix.
+    pub fn prefix_pending(&self) -> bool {
+        (self.fwd.is_some() && self.fwd_prefix != Prefix::Valid)
+            || (self.inv.is_some() && self.inv_prefix != Prefix::Valid)
+    }
+
+    fn sync_prefixes(&mut self) {
+        if let Some(f) = &mut self.fwd {
+            let h = self.history.sent_tail(self.fwd_l - 1);
+            match self.fwd_prefix {
+                Prefix::Valid => {}
+                Prefix::Shift => f.shift_history(h),
+                Prefix::Full => f.set_history(h),
+            }
+            self.fwd_prefix = Prefix::Valid;
+        }
+        if let Some(i) = &mut self.inv {
+            let h = self.history.desired_tail(self.inv_l - 1);
+            match self.inv_prefix {
+                Prefix::Valid => {}
+                Prefix::Shift => i.shift_history(h),
+                Prefix::Full => i.set_history(h),
+            }
+            self.inv_prefix = Prefix::Valid;
+        }
+    }
+
+    /// One compensation step. Allocation-free; its time is bounded by M (or the Newton
+    /// evaluation cap) and the time budget. On a rejected target (`Err`), `out` holds the
+    /// last command (or the target is not used at all) with `stop_reason = RejectedInput`,
+    /// the histories are untouched, and the rejection is counted.
+    pub fn step(&mut self, q_desired_deg: &[f64], out: &mut StepOutput) -> Result<(), StepError> {
+        let t0 = Instant::now();
+        let j = self.j;
+        out.joints = j;
+        out.mode = self.mode;
+        if let Err(e) = self.validate(q_desired_deg) {
+            self.rejected += 1;
+            out.q_cmd_deg = self.last_sent;
+            out.q_refined_deg = self.last_sent;
+            out.has_prediction = false;
+            out.q_predicted_deg = [0.0; MAX_JOINTS];
+            out.loss_max_abs_deg = f64::NAN;
+            out.iterations = 0;
+            out.forward_evals = 0;
+            out.stop_reason = StopReason::RejectedInput;
+            out.rate_limited = false;
+            out.joint_limited = false;
+            out.history_appended = 0;
+            out.elapsed_ns = t0.elapsed().as_nanos() as u64;
+            return Err(e);
+        }
+        let q_des = &q_desired_deg[..j];
+        out.q_desired_deg = [0.0; MAX_JOINTS];
+        out.q_desired_deg[..j].copy_from_slice(q_des);
+        self.sync_prefixes();
+
+        let budget = (self.budget_ns > 0).then_some((t0, self.budget_ns));
+        let mut out_of_time = move || budget.is_some_and(|(s, b)| s.elapsed().as_nanos() as u64 >= b);
+        let mut q = [0.0f64; MAX_JOINTS];
+        let mut pred = [0.0f64; MAX_JOINTS];
+        let mut res = RefineResult::default();
+        match self.mode {
+            Mode::Uncalibrated => q[..j].copy_from_slice(q_des),
+            Mode::Paper => {
+                // Algorithm 1, line 1: inverse model on the desired history + q_desired(t).
+                let inv = self.inv.as_mut().expect("set_mode checked");
+                inv.eval(q_des, &mut q[..j]);
+                if q[..j].iter().any(|v| !v.is_finite()) {
+                    q[..j].copy_from_slice(q_des);
+                }
+                let fwd = self.fwd.as_mut().expect("set_mode checked");
+                res = paper_refine(
+                    fwd,
+                    q_des,
+                    &mut q[..j],
+                    &self.paper,
+                    &mut pred[..j],
+                    &mut out_of_time,
+                    &mut |_, _, _| {},
+                );
+            }
+            Mode::Newton => {
+                match (&mut self.inv, self.newton.init_from_inverse) {
+                    (Some(inv), true) => {
+                        inv.eval(q_des, &mut q[..j]);
+                        if q[..j].iter().any(|v| !v.is_finite()) {
+                            q[..j].copy_from_slice(q_des);
+                        }
+                    }
+                    _ => q[..j].copy_from_slice(q_des),
+                }
+                let robot = &self.robot;
+                let limits = self.joint_limits;
+                let mut project = |qv: &mut [f64]| {
+                    if limits {
+                        let mut a = [0.0f64; N_JOINTS];
+                        a.copy_from_slice(&qv[..N_JOINTS]);
+                        qv[..N_JOINTS].copy_from_slice(&robot.clamp_to_limits(&a));
+                    }
+                };
+                let fwd = self.fwd.as_mut().expect("set_mode checked");
+                res = newton_refine(
+                    fwd,
+                    q_des,
+                    &mut q[..j],
+                    &self.newton,
+                    &mut pred[..j],
+                    &mut project,
+                    &mut out_of_time,
+                );
+            }
+        }
+        out.q_refined_deg = q;
+
+        // Output stage: rate limit against the last command sent, then joint limits.
+        let mut cmd = q;
+        out.rate_limited = false;
+        if self.rate_limit_deg_s > 0.0 && self.has_last {
+            let max_d = self.rate_limit_deg_s * self.period_ns as f64 * 1e-9;
+            for c in 0..j {
+                let lo = self.last_sent[c] - max_d;
+                let hi = self.last_sent[c] + max_d;
+                let v = cmd[c].clamp(lo, hi);
+                if v != cmd[c] {
+                    out.rate_limited = true;
+                }
+                cmd[c] = v;
+            }
+        }
+        out.joint_limited = false;
+        if self.joint_limits {
+            let mut a = [0.0f64; N_JOINTS];
+            a.copy_from_slice(&cmd[..N_JOINTS]);
+            let clamped = self.robot.clamp_to_limits(&a);
+            if clamped != a {
+                out.joint_limited = true;
+            }
+            cmd[..N_JOINTS].copy_from_slice(&clamped);
+        }
+
+        // The forward model's expectation for what is actually sent.
+        let mut evals = res.evals;
+        out.has_prediction = false;
+        out.q_predicted_deg = [0.0; MAX_JOINTS];
+        out.loss_max_abs_deg = f64::NAN;
+        if let Some(fwd) = &mut self.fwd {
+            if !(res.pred_at_q && cmd[..j] == q[..j]) {
+                fwd.eval(&cmd[..j], &mut pred[..j]);
+                evals += 1;
+            }
+            out.q_predicted_deg[..j].copy_from_slice(&pred[..j]);
+            out.has_prediction = pred[..j].iter().all(|v| v.is_finite());
+            out.loss_max_abs_deg = (0..j).map(|c| (pred[c] - q_des[c]).abs()).fold(0.0, f64::max);
+        }
+
+        let appended = self.history.record(q_des, &cmd[..j]);
+        let mark = |p: &mut Prefix| {
+            *p = match (appended, *p) {
+                (0, p) => p,
+                (1, Prefix::Valid) => Prefix::Shift,
+                _ => Prefix::Full,
+            }
+        };
+        mark(&mut self.fwd_prefix);
+        mark(&mut self.inv_prefix);
+        self.last_sent = cmd;
+        self.has_last = true;
+
+        out.q_cmd_deg = cmd;
+        out.iterations = res.iterations;
+        out.forward_evals = evals;
+        out.stop_reason = res.stop;
+        out.history_appended = appended as u32;
+        out.elapsed_ns = t0.elapsed().as_nanos() as u64;
+        Ok(())
+    }
+
+    fn validate(&self, q: &[f64]) -> Result<(), StepError> {
+        if q.len() != self.j {
+            return Err(StepError::WrongLength {
+                expected: self.j,
+                found: q.len(),
+            });
+        }
+        if let Some((c, &v)) = q.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            return Err(StepError::NotFinite { joint: c + 1, value: v });
+        }
+        Ok(())
+    }
+}

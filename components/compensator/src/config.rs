@@ -1,0 +1,392 @@
+//! `configs/controller.toml`: every setting of the compensator.
+
+use crate::history::HistoryRule;
+use crate::refine::{NewtonParams, PaperParams};
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+/// A bad controller config: what, where and why.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("{path}: cannot read the controller config: {source}")]
+    Io {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: {message}")]
+    Parse { path: String, message: String },
+    #[error("{path}: `{field}` = {value}: {reason}")]
+    Invalid {
+        path: String,
+        field: &'static str,
+        value: String,
+        reason: &'static str,
+    },
+    #[error("{path}: `{field}` = {value:?}: no such file (tried {tried})")]
+    ModelNotFound {
+        path: String,
+        field: &'static str,
+        value: String,
+        tried: String,
+    },
+}
+
+/// Compensation mode (the names of `bowden_interfaces::CompensationMode`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    /// Pass-through: q_cmd = q_desired (the paper's uncalibrated controller).
+    Uncalibrated,
+    /// Algorithm 1 exactly.
+    Paper,
+    /// Levenberg–Marquardt on the forward model's exact Jacobian.
+    Newton,
+}
+
+impl Mode {
+    pub const ALL: [Mode; 3] = [Mode::Uncalibrated, Mode::Paper, Mode::Newton];
+    pub fn name(self) -> &'static str {
+        match self {
+            Mode::Uncalibrated => "uncalibrated",
+            Mode::Paper => "paper",
+            Mode::Newton => "newton",
+        }
+    }
+    pub fn parse(s: &str) -> Option<Mode> {
+        Mode::ALL.into_iter().find(|m| m.name() == s)
+    }
+    pub fn to_interface(self) -> bowden_interfaces::CompensationMode {
+        use bowden_interfaces::CompensationMode as C;
+        match self {
+            Mode::Uncalibrated => C::Uncalibrated,
+            Mode::Paper => C::Paper,
+            Mode::Newton => C::Newton,
+        }
+    }
+    pub fn from_interface(m: bowden_interfaces::CompensationMode) -> Mode {
+        use bowden_interfaces::CompensationMode as C;
+        match m {
+            C::Uncalibrated => Mode::Uncalibrated,
+            C::Paper => Mode::Paper,
+            C::Newton => Mode::Newton,
+        }
+    }
+    /// Whether the mode needs (forward, inverse) models.
+    pub fn needs_models(self, newton_init_from_inverse: bool) -> (bool, bool) {
+        match self {
+            Mode::Uncalibrated => (false, false),
+            Mode::Paper => (true, true),
+            Mode::Newton => (true, newton_init_from_inverse),
+        }
+    }
+}
+
+impl std::fmt::Display for Mode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Which evaluator runs the models.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, serde::Serialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum EvaluatorChoice {
+    /// The exact incremental evaluator when the graph is recognised, tract otherwise.
+    #[default]
+    Auto,
+    /// tract's full evaluation for every trial (the naive baseline; allocates).
+    Tract,
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BudgetConfig {
+    /// Time budget of one step in ns (refinement stops when spent); 0 = no budget, which
+    /// lockstep / deterministic runs need so results do not depend on the machine's speed.
+    pub budget_ns: u64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HistoryRuleName {
+    Distance,
+    EveryStep,
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HistoryConfig {
+    /// `distance`: a new entry when the desired command moved ≥ `step_deg` from the last
+    /// entry; `every_step`: every call.
+    pub rule: HistoryRuleName,
+    /// The model's time step in joint space: the dataset's 3·√5 deg (eq. 16).
+    pub step_deg: f64,
+    /// Interpolate intermediate entries when one call moves several steps.
+    pub interpolate: bool,
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputConfig {
+    /// Clamp the command into the robot's joint limits (and keep the jaws from crossing).
+    pub joint_limits: bool,
+    /// Largest command speed per joint, deg/s; 0 = no rate limit.
+    pub rate_limit_deg_s: f64,
+    /// Control period the rate limit assumes, ns (the runtime may override it).
+    pub period_ns: u64,
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LoadCheckConfig {
+    /// Random windows on which the incremental evaluator is checked against tract at load.
+    pub windows: usize,
+    /// Largest accepted difference, degrees.
+    pub tolerance_deg: f64,
+}
+
+/// The whole controller config.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControllerConfig {
+    pub mode: Mode,
+    /// Forward model (q_cmd history → q_phy); relative paths resolve against the config
+    /// file's directory, then the repository root (its parent), then the working directory.
+    #[serde(default)]
+    pub model_fwd: Option<PathBuf>,
+    /// Inverse model (q_phy history → q_cmd).
+    #[serde(default)]
+    pub model_inv: Option<PathBuf>,
+    #[serde(default)]
+    pub evaluator: EvaluatorChoice,
+    pub paper: PaperParams,
+    pub newton: NewtonParams,
+    pub budget: BudgetConfig,
+    pub history: HistoryConfig,
+    pub output: OutputConfig,
+    pub load_check: LoadCheckConfig,
+    /// Where the config came from (relative model paths resolve against it).
+    #[serde(skip)]
+    pub source: Option<PathBuf>,
+}
+
+const SHIPPED: &str = include_str!("../../../configs/controller.toml");
+
+impl ControllerConfig {
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
+        let p = path.as_ref();
+        let text = std::fs::read_to_string(p).map_err(|source| ConfigError::Io {
+            path: p.display().to_string(),
+            source,
+        })?;
+        Self::parse(&text, p)
+    }
+
+    /// Parses and validates; `path` names the file in errors and anchors relative paths.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        let mut c: ControllerConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            path: path.display().to_string(),
+            message: e.to_string().trim().replace('\n', " "),
+        })?;
+        c.source = Some(path.to_path_buf());
+        c.validate()?;
+        Ok(c)
+    }
+
+    /// The shipped `configs/controller.toml` (embedded at build time).
+    pub fn shipped() -> Self {
+        let mut c = Self::parse(SHIPPED, Path::new("configs/controller.toml")).expect("the shipped config is valid");
+        // Anchor relative paths at the repository this crate was built from; the working
+        // directory is tried too.
+        c.source = Some(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/controller.toml"));
+        c
+    }
+
+    pub fn history_rule(&self) -> HistoryRule {
+        match self.history.rule {
+            HistoryRuleName::EveryStep => HistoryRule::EveryStep,
+            HistoryRuleName::Distance => HistoryRule::Distance {
+                step_deg: self.history.step_deg,
+                interpolate: self.history.interpolate,
+            },
+        }
+    }
+
+    fn path_name(&self) -> String {
+        self.source
+            .as_ref()
+            .map(|p| p.display().to_string())
+            .unwrap_or_else(|| "<controller config>".into())
+    }
+
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let path = self.path_name();
+        let bad = |field: &'static str, value: String, reason: &'static str| {
+            Err(ConfigError::Invalid {
+                path: path.clone(),
+                field,
+                value,
+                reason,
+            })
+        };
+        let p = &self.paper;
+        if !(1..=100_000).contains(&p.iterations) {
+            return bad("paper.iterations", p.iterations.to_string(), "must be in 1..=100000");
+        }
+        if !(p.alpha.is_finite() && p.alpha > 0.0) {
+            return bad("paper.alpha", p.alpha.to_string(), "must be a positive number");
+        }
+        if !(p.threshold_deg.is_finite() && p.threshold_deg >= 0.0) {
+            return bad("paper.threshold_deg", p.threshold_deg.to_string(), "must be ≥ 0");
+        }
+        let n = &self.newton;
+        if !(1..=10_000).contains(&n.max_evals) {
+            return bad("newton.max_evals", n.max_evals.to_string(), "must be in 1..=10000");
+        }
+        let pos = [
+            ("newton.tolerance_deg", n.tolerance_deg),
+            ("newton.damping_init", n.damping_init),
+            ("newton.damping_min", n.damping_min),
+            ("newton.damping_max", n.damping_max),
+            ("newton.max_step_deg", n.max_step_deg),
+            ("newton.fallback_step", n.fallback_step),
+        ];
+        for (field, v) in pos {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(field, v.to_string(), "must be a positive number");
+            }
+        }
+        if !(n.damping_increase.is_finite() && n.damping_increase > 1.0) {
+            return bad("newton.damping_increase", n.damping_increase.to_string(), "must be > 1");
+        }
+        if !(n.damping_decrease > 0.0 && n.damping_decrease < 1.0) {
+            return bad(
+                "newton.damping_decrease",
+                n.damping_decrease.to_string(),
+                "must be in (0, 1)",
+            );
+        }
+        if n.damping_min > n.damping_max {
+            return bad(
+                "newton.damping_min",
+                n.damping_min.to_string(),
+                "must not exceed newton.damping_max",
+            );
+        }
+        let h = &self.history;
+        if !(h.step_deg.is_finite() && h.step_deg > 0.0) {
+            return bad("history.step_deg", h.step_deg.to_string(), "must be a positive number");
+        }
+        let o = &self.output;
+        if !(o.rate_limit_deg_s.is_finite() && o.rate_limit_deg_s >= 0.0) {
+            return bad(
+                "output.rate_limit_deg_s",
+                o.rate_limit_deg_s.to_string(),
+                "must be ≥ 0 (0 = off)",
+            );
+        }
+        if o.rate_limit_deg_s > 0.0 && o.period_ns == 0 {
+            return bad("output.period_ns", "0".into(), "must be > 0 when a rate limit is set");
+        }
+        let lc = &self.load_check;
+        if !(1..=10_000).contains(&lc.windows) {
+            return bad("load_check.windows", lc.windows.to_string(), "must be in 1..=10000");
+        }
+        if !(lc.tolerance_deg.is_finite() && lc.tolerance_deg > 0.0) {
+            return bad(
+                "load_check.tolerance_deg",
+                lc.tolerance_deg.to_string(),
+                "must be a positive number",
+            );
+        }
+        Ok(())
+    }
+
+    /// Resolves a model path: absolute as is; relative against the config's directory, the
+    /// repository root (the config directory's parent), then the working directory.
+    pub fn resolve_model_path(&self, field: &'static str, p: &Path) -> Result<PathBuf, ConfigError> {
+        if p.is_absolute() {
+            return if p.exists() {
+                Ok(p.to_path_buf())
+            } else {
+                Err(ConfigError::ModelNotFound {
+                    path: self.path_name(),
+                    field,
+                    value: p.display().to_string(),
+                    tried: p.display().to_string(),
+                })
+            };
+        }
+        let mut tried = Vec::new();
+        if let Some(dir) = self.source.as_ref().and_then(|s| s.parent()) {
+            tried.push(dir.join(p));
+            if let Some(root) = dir.parent() {
+                tried.push(root.join(p));
+            }
+        }
+        tried.push(p.to_path_buf());
+        for t in &tried {
+            if t.exists() {
+                return Ok(t.clone());
+            }
+        }
+        Err(ConfigError::ModelNotFound {
+            path: self.path_name(),
+            field,
+            value: p.display().to_string(),
+            tried: tried
+                .iter()
+                .map(|t| t.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shipped_config_parses_with_paper_defaults() {
+        let c = ControllerConfig::shipped();
+        assert_eq!(c.paper, PaperParams::default());
+        assert!(matches!(c.history_rule(), HistoryRule::Distance { .. }));
+    }
+
+    #[test]
+    fn errors_name_file_and_field() {
+        let bad = SHIPPED.replace("alpha = 0.001", "alpha = -1.0");
+        let e = ControllerConfig::parse(&bad, Path::new("x/controller.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("x/controller.toml") && e.contains("paper.alpha") && e.contains("-1"),
+            "{e}"
+        );
+        let bad = SHIPPED.replace("[budget]", "[budget]\nbudget_ms = 3");
+        let e = ControllerConfig::parse(&bad, Path::new("y.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("y.toml") && e.contains("budget_ms"), "{e}");
+        let bad = SHIPPED.replace("mode = \"paper\"", "mode = \"magic\"");
+        let e = ControllerConfig::parse(&bad, Path::new("z.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("z.toml") && e.contains("magic"), "{e}");
+    }
+
+    #[test]
+    fn missing_model_lists_where_it_looked() {
+        let c = ControllerConfig::parse(SHIPPED, Path::new("/nonexistent/configs/controller.toml")).unwrap();
+        let e = c
+            .resolve_model_path("model_fwd", Path::new("models/nope.onnx"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("model_fwd") && e.contains("/nonexistent/configs/models/nope.onnx"),
+            "{e}"
+        );
+    }
+}

@@ -1,0 +1,253 @@
+//! The model contract (DESIGN.md §5): what an ONNX hysteresis model must look like for bowden
+//! to load it. Writers of model files (the learning crate, PyTorch exporters) and this crate's
+//! loader share these names, so they are defined once, here.
+//!
+//! - one input, [`INPUT_NAME`], float32, shape `[1, L, J]`: the last L joint vectors in
+//!   degrees, oldest first (left zero padding, in degrees, while the history is short);
+//! - one output, [`OUTPUT_NAME`], float32, shape `[1, J]`, degrees;
+//! - normalisation inside the graph (input and output each with its own mean and SD);
+//! - metadata props ([`keys`]): `direction`, `seq_len`, `joints`, `architecture`, `units`
+//!   and, for TCNs, `tcn_block`.
+
+use std::fmt;
+use std::str::FromStr;
+
+/// Name of the graph input: f32 `[1, seq_len, joints]`, degrees, oldest first.
+pub const INPUT_NAME: &str = "q_seq_deg";
+/// Name of the graph output: f32 `[1, joints]`, degrees.
+pub const OUTPUT_NAME: &str = "q_deg";
+/// The only accepted value of the `units` metadata prop.
+pub const UNITS_DEG: &str = "deg";
+/// ONNX operator set the shipped files use (tract supports 9..=18).
+pub const RECOMMENDED_OPSET: i64 = 17;
+/// Largest number of joints a model may have (the sample types carry `MAX_JOINTS`).
+pub const MAX_JOINTS: usize = bowden_interfaces::MAX_JOINTS;
+
+/// Metadata prop keys (`ModelProto.metadata_props`).
+pub mod keys {
+    /// `forward` (q_cmd history → q_phy) or `inverse` (q_phy history → q_cmd).
+    pub const DIRECTION: &str = "direction";
+    /// L, the window length, decimal integer; must equal the input's second dimension.
+    pub const SEQ_LEN: &str = "seq_len";
+    /// J, the number of joints, decimal integer; must equal the input's third dimension.
+    pub const JOINTS: &str = "joints";
+    /// `fnn`, `lstm`, `tcn` or `tcn-lstm`.
+    pub const ARCHITECTURE: &str = "architecture";
+    /// Always `deg`.
+    pub const UNITS: &str = "units";
+    /// TCN block variant, required for `tcn` and `tcn-lstm`: `relu-relu` or `relu-linear`.
+    pub const TCN_BLOCK: &str = "tcn_block";
+    /// Every key a loader requires for every architecture.
+    pub const REQUIRED: [&str; 5] = [DIRECTION, SEQ_LEN, JOINTS, ARCHITECTURE, UNITS];
+}
+
+/// A metadata prop that is missing or does not parse.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ContractError {
+    #[error("metadata prop `{key}` is missing")]
+    Missing { key: &'static str },
+    #[error("metadata prop `{key}` = {value:?} is not valid (expected {expected})")]
+    Invalid {
+        key: &'static str,
+        value: String,
+        expected: &'static str,
+    },
+}
+
+macro_rules! string_enum {
+    ($(#[$m:meta])* $name:ident, $key:expr, { $($(#[$vm:meta])* $var:ident => $s:expr),+ $(,)? }) => {
+        $(#[$m])*
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+        pub enum $name { $($(#[$vm])* $var),+ }
+
+        impl $name {
+            /// Every value, in declaration order.
+            pub const ALL: &'static [$name] = &[$($name::$var),+];
+            /// The spelling used in model files and on the command line.
+            pub fn as_str(self) -> &'static str {
+                match self { $($name::$var => $s),+ }
+            }
+            /// Parses the spelling of `as_str`.
+            pub fn parse_prop(value: &str) -> Result<Self, ContractError> {
+                match value {
+                    $($s => Ok($name::$var),)+
+                    _ => Err(ContractError::Invalid {
+                        key: $key,
+                        value: value.to_string(),
+                        expected: concat!("one of:" $(, " ", $s)+),
+                    }),
+                }
+            }
+        }
+
+        impl fmt::Display for $name {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str(self.as_str())
+            }
+        }
+
+        impl FromStr for $name {
+            type Err = ContractError;
+            fn from_str(s: &str) -> Result<Self, Self::Err> {
+                Self::parse_prop(s)
+            }
+        }
+    };
+}
+
+string_enum!(
+    /// What a model predicts from what.
+    Direction, keys::DIRECTION, {
+        /// q_cmd history → q_phy (the plant's response).
+        Forward => "forward",
+        /// q_phy history → q_cmd (the command that produced it).
+        Inverse => "inverse",
+    }
+);
+
+string_enum!(
+    /// The paper's four candidate architectures (§IV-C).
+    Architecture, keys::ARCHITECTURE, {
+        Fnn => "fnn",
+        Lstm => "lstm",
+        Tcn => "tcn",
+        TcnLstm => "tcn-lstm",
+    }
+);
+
+string_enum!(
+    /// Where a TCN residual block has its ReLUs (DESIGN.md §5).
+    TcnBlock, keys::TCN_BLOCK, {
+        /// ReLU after both convolutions: the paper read literally.
+        ReluRelu => "relu-relu",
+        /// ReLU between the convolutions only; the second one is linear (the default).
+        ReluLinear => "relu-linear",
+    }
+);
+
+impl Architecture {
+    /// True for architectures that contain a TCN and therefore need `tcn_block`.
+    pub fn has_tcn(self) -> bool {
+        matches!(self, Architecture::Tcn | Architecture::TcnLstm)
+    }
+}
+
+/// The parsed metadata of a contract-following model.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ModelMetadata {
+    pub direction: Direction,
+    pub seq_len: usize,
+    pub joints: usize,
+    pub architecture: Architecture,
+    /// Present iff the architecture has a TCN.
+    pub tcn_block: Option<TcnBlock>,
+}
+
+impl ModelMetadata {
+    /// The metadata props to write into `ModelProto.metadata_props`, in a fixed order.
+    pub fn to_props(&self) -> Vec<(String, String)> {
+        let mut v = vec![
+            (keys::DIRECTION.to_string(), self.direction.as_str().to_string()),
+            (keys::SEQ_LEN.to_string(), self.seq_len.to_string()),
+            (keys::JOINTS.to_string(), self.joints.to_string()),
+            (keys::ARCHITECTURE.to_string(), self.architecture.as_str().to_string()),
+            (keys::UNITS.to_string(), UNITS_DEG.to_string()),
+        ];
+        if let Some(b) = self.tcn_block {
+            v.push((keys::TCN_BLOCK.to_string(), b.as_str().to_string()));
+        }
+        v
+    }
+
+    /// Parses and checks the props; `get(key)` returns the value of a prop if present.
+    pub fn from_props<'a>(get: impl Fn(&str) -> Option<&'a str>) -> Result<Self, ContractError> {
+        let req = |key: &'static str| get(key).ok_or(ContractError::Missing { key });
+        let direction = Direction::parse_prop(req(keys::DIRECTION)?)?;
+        let seq_len = parse_count(keys::SEQ_LEN, req(keys::SEQ_LEN)?, 1, 100_000)?;
+        let joints = parse_count(keys::JOINTS, req(keys::JOINTS)?, 1, MAX_JOINTS)?;
+        let architecture = Architecture::parse_prop(req(keys::ARCHITECTURE)?)?;
+        let units = req(keys::UNITS)?;
+        if units != UNITS_DEG {
+            return Err(ContractError::Invalid {
+                key: keys::UNITS,
+                value: units.to_string(),
+                expected: "\"deg\"",
+            });
+        }
+        let tcn_block = if architecture.has_tcn() {
+            Some(TcnBlock::parse_prop(req(keys::TCN_BLOCK)?)?)
+        } else {
+            None
+        };
+        Ok(Self {
+            direction,
+            seq_len,
+            joints,
+            architecture,
+            tcn_block,
+        })
+    }
+}
+
+fn parse_count(key: &'static str, value: &str, min: usize, max: usize) -> Result<usize, ContractError> {
+    match value.trim().parse::<usize>() {
+        Ok(n) if (min..=max).contains(&n) => Ok(n),
+        _ => Err(ContractError::Invalid {
+            key,
+            value: value.to_string(),
+            expected: if key == keys::JOINTS {
+                "an integer in 1..=8 (MAX_JOINTS)"
+            } else {
+                "a positive integer"
+            },
+        }),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::HashMap;
+
+    #[test]
+    fn props_round_trip() {
+        let m = ModelMetadata {
+            direction: Direction::Inverse,
+            seq_len: 80,
+            joints: 5,
+            architecture: Architecture::Tcn,
+            tcn_block: Some(TcnBlock::ReluLinear),
+        };
+        let props: HashMap<String, String> = m.to_props().into_iter().collect();
+        let back = ModelMetadata::from_props(|k| props.get(k).map(|s| s.as_str())).unwrap();
+        assert_eq!(back, m);
+    }
+
+    #[test]
+    fn tcn_needs_block_and_units_must_be_deg() {
+        let mut props: HashMap<&str, &str> = [
+            ("direction", "forward"),
+            ("seq_len", "80"),
+            ("joints", "5"),
+            ("architecture", "tcn"),
+            ("units", "deg"),
+        ]
+        .into_iter()
+        .collect();
+        let get = |p: &HashMap<&str, &str>| ModelMetadata::from_props(|k| p.get(k).copied());
+        assert_eq!(get(&props), Err(ContractError::Missing { key: keys::TCN_BLOCK }));
+        props.insert("tcn_block", "relu-sigmoid");
+        assert!(matches!(
+            get(&props),
+            Err(ContractError::Invalid { key: "tcn_block", .. })
+        ));
+        props.insert("tcn_block", "relu-relu");
+        props.insert("units", "rad");
+        assert!(matches!(get(&props), Err(ContractError::Invalid { key: "units", .. })));
+        props.insert("units", "deg");
+        props.insert("joints", "9");
+        assert!(matches!(get(&props), Err(ContractError::Invalid { key: "joints", .. })));
+        props.insert("joints", "5");
+        assert_eq!(get(&props).unwrap().tcn_block, Some(TcnBlock::ReluRelu));
+    }
+}

@@ -1,0 +1,38 @@
+//! bowden-compensator: hysteresis compensation of a cable-driven continuum manipulator with
+//! learned forward/inverse models (Park et al., RA-L 2024, Algorithm 1 and §IV-D), bounded in
+//! time and allocation-free in the control loop.
+//!
+//! - [`contract`]: the ONNX model contract (names, metadata keys, allowed values), shared
+//!   with the model writers.
+//! - [`Model`]: loads a contract-following ONNX file with tract-onnx, checks it (shape,
+//!   metadata, finite weights), recognises FNN / LSTM / TCN / TCN-LSTM graphs (PyTorch's
+//!   exports included) and verifies the exact incremental evaluator against tract.
+//! - [`IncrementalNet`]: per window, the first L−1 columns once; per trial, the last column
+//!   only; forward-mode Jacobian in the same pass.
+//! - [`paper_refine`] (Algorithm 1 exactly) and [`newton_refine`] (Levenberg–Marquardt on the
+//!   exact Jacobian), generic over [`WindowModel`].
+//! - [`Compensator`]: histories sampled at the model's step, modes, budget, limits:
+//!   `Compensator::from_config(&ControllerConfig, &Robot)?.step(&q_desired_deg, &mut out)`.
+//! - [`offline`] and [`bench`]: the `bowden compensate` and `bowden bench compensate` engines.
+
+// Numeric kernels index several parallel arrays with one loop variable; iterator chains over
+// four zipped slices would read worse.
+#![allow(clippy::needless_range_loop)]
+
+pub mod bench;
+pub mod compensator;
+pub mod config;
+pub mod contract;
+pub mod history;
+pub mod model;
+pub mod net;
+pub mod offline;
+mod recognise;
+pub mod refine;
+
+pub use compensator::{Compensator, CompensatorError, StepError, StepOutput};
+pub use config::{ConfigError, ControllerConfig, EvaluatorChoice, Mode};
+pub use history::{History, HistoryRule};
+pub use model::{Evaluator, LoadOptions, Model, ModelError, TractEvaluator};
+pub use net::{IncrementalNet, Net, NetSummary};
+pub use refine::{newton_refine, paper_refine, NewtonParams, PaperParams, RefineResult, StopReason, WindowModel};

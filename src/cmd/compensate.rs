@@ -1,0 +1,240 @@
+//! `bowden compensate` (offline, CSV in/out) and `bowden bench compensate`: thin wrappers over
+//! `bowden-compensator`.
+
+use anyhow::{bail, Context};
+use bowden_compensator::bench::{self, BenchOptions, Scenario};
+use bowden_compensator::{offline, Compensator, ControllerConfig, Mode};
+use bowden_kinematics::Robot;
+use clap::{Args, Subcommand};
+use std::path::{Path, PathBuf};
+
+#[derive(Subcommand)]
+pub enum Command {
+    /// Compensate a target file offline: CSV in (columns q1..q5, degrees), CSV out with the
+    /// command, the forward model's prediction, iterations and stop reason per target.
+    Compensate(CompensateArgs),
+}
+
+/// Model and config options shared by `compensate` and `bench compensate`.
+#[derive(Args, Debug, Clone)]
+pub struct ModelArgs {
+    /// Forward model (ONNX, contract of DESIGN.md §5); default: the config's `model_fwd`.
+    #[arg(long)]
+    model_fwd: Option<PathBuf>,
+    /// Inverse model; default: the config's `model_inv`.
+    #[arg(long)]
+    model_inv: Option<PathBuf>,
+    /// Controller config (default: configs/controller.toml, or the shipped one if absent).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Robot config for the joint limits (default: configs/robot.toml as shipped).
+    #[arg(long)]
+    robot: Option<PathBuf>,
+}
+
+#[derive(Args, Debug)]
+pub struct CompensateArgs {
+    #[command(flatten)]
+    models: ModelArgs,
+    /// Target file: CSV with a header naming q1..q5 (degrees); other columns are ignored.
+    #[arg(long)]
+    targets: PathBuf,
+    /// uncalibrated | paper | newton (default: the config's mode).
+    #[arg(long)]
+    mode: Option<String>,
+    /// Output CSV (default: standard output).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Time budget per step in ns; default 0 (none), so the output is reproducible.
+    #[arg(long, default_value_t = 0)]
+    budget_ns: u64,
+    /// Time between consecutive targets, ns, for the output rate limit (default: the
+    /// config's `output.period_ns`); 0 disables the rate limit.
+    #[arg(long)]
+    period_ns: Option<u64>,
+}
+
+#[derive(Subcommand)]
+pub enum BenchCommand {
+    /// Latency of one compensation step per mode (p50/p99/p99.9/max over ≥ 100k steps) beside
+    /// the naive approach (tract's full evaluation for every trial) and their ratio.
+    Compensate(BenchArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    #[command(flatten)]
+    models: ModelArgs,
+    /// Steps measured per scenario and mode.
+    #[arg(long, default_value_t = 100_000)]
+    steps: usize,
+    /// Steps measured for the naive tract loop (slow: ~50 tract runs per step).
+    #[arg(long, default_value_t = 300)]
+    naive_steps: usize,
+    /// dataset-step (a history change every step: the worst case), fine (1 kHz-like), both.
+    #[arg(long, default_value = "both")]
+    scenario: String,
+    /// Joint-space distance per step of the `fine` scenario, deg (0.06 = 60 deg/s at 1 kHz).
+    #[arg(long, default_value_t = 0.06)]
+    fine_deg_per_step: f64,
+    /// Trajectory seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Pin the benchmark thread to this CPU.
+    #[arg(long)]
+    cpu: Option<usize>,
+    /// Print JSON instead of the Markdown table.
+    #[arg(long)]
+    json: bool,
+    /// Also write the report as FILE.json, FILE.md and FILE.svg (latency plot).
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+fn absolute(p: &Path) -> anyhow::Result<PathBuf> {
+    if p.is_absolute() {
+        Ok(p.to_path_buf())
+    } else {
+        Ok(std::env::current_dir().context("current directory")?.join(p))
+    }
+}
+
+fn load_setup(m: &ModelArgs) -> anyhow::Result<(ControllerConfig, Robot)> {
+    let default = Path::new("configs/controller.toml");
+    let mut cfg = match &m.config {
+        Some(p) => ControllerConfig::load(p).with_context(|| format!("loading controller config {}", p.display()))?,
+        None if default.exists() => ControllerConfig::load(default).context("loading configs/controller.toml")?,
+        None => ControllerConfig::shipped(),
+    };
+    if let Some(p) = &m.model_fwd {
+        cfg.model_fwd = Some(absolute(p)?);
+    }
+    if let Some(p) = &m.model_inv {
+        cfg.model_inv = Some(absolute(p)?);
+    }
+    let robot = match &m.robot {
+        Some(p) => Robot::load(p).with_context(|| format!("loading robot config {}", p.display()))?,
+        None => Robot::paper_default(),
+    };
+    Ok((cfg, robot))
+}
+
+fn parse_mode(s: &str) -> anyhow::Result<Mode> {
+    Mode::parse(s).with_context(|| format!("--mode {s:?}: expected uncalibrated, paper or newton"))
+}
+
+fn progress_bar(n: u64, what: &str) -> indicatif::ProgressBar {
+    let b = indicatif::ProgressBar::new(n);
+    b.set_style(
+        indicatif::ProgressStyle::with_template(&format!("{{bar:40}} {{pos}}/{{len}} {what} {{per_sec}} eta {{eta}}"))
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    b
+}
+
+pub fn run(c: Command) -> anyhow::Result<()> {
+    match c {
+        Command::Compensate(a) => compensate(a),
+    }
+}
+
+fn compensate(a: CompensateArgs) -> anyhow::Result<()> {
+    let (mut cfg, robot) = load_setup(&a.models)?;
+    if let Some(m) = &a.mode {
+        cfg.mode = parse_mode(m)?;
+    }
+    cfg.budget.budget_ns = a.budget_ns;
+    match a.period_ns {
+        Some(0) => cfg.output.rate_limit_deg_s = 0.0,
+        Some(ns) => cfg.output.period_ns = ns,
+        None => {}
+    }
+    let mut comp = Compensator::from_config(&cfg, &robot).context("building the compensator")?;
+    let targets = offline::read_targets_csv(&a.targets, comp.joints())?;
+    let bar = progress_bar(targets.len() as u64, "targets");
+    let outs = offline::run(&mut comp, &targets, |i| bar.set_position(i as u64));
+    bar.finish_and_clear();
+    match &a.out {
+        Some(p) => {
+            let f = std::fs::File::create(p).with_context(|| format!("creating {}", p.display()))?;
+            let mut w = std::io::BufWriter::new(f);
+            offline::write_csv(&mut w, &outs).with_context(|| format!("writing {}", p.display()))?;
+        }
+        None => offline::write_csv(&mut std::io::stdout().lock(), &outs).context("writing to stdout")?,
+    }
+    let s = offline::summarize(&outs);
+    eprintln!(
+        "{} targets, mode {}: mean max|f(q_cmd) − q_desired| = {:.3} deg (max {:.3}), mean iterations {:.1}, \
+         mean forward evaluations {:.1}, stop reasons {:?}",
+        s.steps,
+        comp.mode(),
+        s.mean_loss_deg,
+        s.max_loss_deg,
+        s.mean_iterations,
+        s.mean_forward_evals,
+        s.stop_reasons
+    );
+    Ok(())
+}
+
+fn pin_to_cpu(cpu: usize) -> anyhow::Result<()> {
+    // SAFETY: cpu_set_t is plain data; sched_setaffinity reads it for the calling thread.
+    let rc = unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        libc::CPU_SET(cpu, &mut set);
+        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set)
+    };
+    if rc != 0 {
+        bail!(
+            "--cpu {cpu}: sched_setaffinity failed: {}",
+            std::io::Error::last_os_error()
+        );
+    }
+    Ok(())
+}
+
+pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
+    let BenchCommand::Compensate(a) = c;
+    let (cfg, robot) = load_setup(&a.models)?;
+    if a.steps == 0 {
+        bail!("--steps must be > 0");
+    }
+    let scenarios = match a.scenario.as_str() {
+        "dataset-step" => vec![Scenario::DatasetStep],
+        "fine" => vec![Scenario::Fine],
+        "both" => vec![Scenario::DatasetStep, Scenario::Fine],
+        other => bail!("--scenario {other:?}: expected dataset-step, fine or both"),
+    };
+    if !(a.fine_deg_per_step.is_finite() && a.fine_deg_per_step > 0.0) {
+        bail!("--fine-deg-per-step {}: must be a positive number", a.fine_deg_per_step);
+    }
+    if let Some(cpu) = a.cpu {
+        pin_to_cpu(cpu)?;
+    }
+    let opts = BenchOptions {
+        steps: a.steps,
+        naive_steps: a.naive_steps,
+        seed: a.seed,
+        fine_deg_per_step: a.fine_deg_per_step,
+        scenarios,
+        config: cfg,
+    };
+    let bar = progress_bar(bench::total_steps(&opts), "steps");
+    let report = bench::run(&opts, &robot, &mut |n| bar.inc(n)).context("compensator benchmark")?;
+    bar.finish_and_clear();
+    let json = serde_json::to_string_pretty(&report).context("serialising the report")?;
+    let md = report.to_markdown();
+    if let Some(p) = &a.out {
+        for (ext, text) in [("json", &json), ("md", &md)] {
+            let f = p.with_extension(ext);
+            std::fs::write(&f, text).with_context(|| format!("writing {}", f.display()))?;
+        }
+        report.write_svg(&p.with_extension("svg"))?;
+    }
+    if a.json {
+        println!("{json}");
+    } else {
+        println!("{md}");
+    }
+    Ok(())
+}
