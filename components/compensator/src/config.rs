@@ -257,6 +257,9 @@ impl ControllerConfig {
                 return bad(field, v.to_string(), "must be a positive number");
             }
         }
+        if !(n.prior_weight.is_finite() && n.prior_weight >= 0.0) {
+            return bad("newton.prior_weight", n.prior_weight.to_string(), "must be ≥ 0");
+        }
         if !(n.damping_increase.is_finite() && n.damping_increase > 1.0) {
             return bad("newton.damping_increase", n.damping_increase.to_string(), "must be > 1");
         }

@@ -114,6 +114,13 @@ pub struct NewtonParams {
     pub fallback_step: f64,
     /// Start from the inverse model's estimate (as Algorithm 1), else from q_desired.
     pub init_from_inverse: bool,
+    /// Weight μ of a prior toward the starting point q₀ (the inverse model's estimate):
+    /// minimises |f(q) − q_desired|² + μ²|q − q₀|² (deg/deg). A learned forward model is only
+    /// trustworthy near the commands it was trained on; where its response to the newest input
+    /// is flat (a dead band), plain Gauss–Newton takes large steps into commands where the model
+    /// is wrong. 0 = plain Gauss–Newton.
+    #[serde(default)]
+    pub prior_weight: f64,
 }
 
 impl Default for NewtonParams {
@@ -129,6 +136,7 @@ impl Default for NewtonParams {
             max_step_deg: 20.0,
             fallback_step: 0.5,
             init_from_inverse: true,
+            prior_weight: 0.0,
         }
     }
 }
@@ -273,12 +281,16 @@ pub fn newton_refine<M: WindowModel + ?Sized>(
         ..Default::default()
     };
     project(q);
+    let mut q0 = [0.0f64; MAX_JOINTS];
+    q0[..j].copy_from_slice(q);
+    let mu2 = p.prior_weight * p.prior_weight;
+    let prior = |q: &[f64]| -> f64 { mu2 * q.iter().zip(&q0).map(|(a, b)| (a - b) * (a - b)).sum::<f64>() };
     fwd.eval_jacobian(q, pred, jac);
     r.evals = 1;
     for c in 0..j {
         res[c] = pred[c] - q_desired[c];
     }
-    let mut cost: f64 = res.iter().map(|v| v * v).sum();
+    let mut cost: f64 = res.iter().map(|v| v * v).sum::<f64>() + prior(q);
     r.loss_max_abs_deg = max_abs(res);
     if !cost.is_finite() {
         r.stop = StopReason::Stalled;
@@ -309,12 +321,14 @@ pub fn newton_refine<M: WindowModel + ?Sized>(
                 }
                 a[c1 * j + c2] = s;
             }
+            // The prior adds μ²I to JᵀJ and −μ²(q − q₀) to the gradient.
+            a[c1 * j + c1] += mu2;
             trace += a[c1 * j + c1];
             let mut s = 0.0;
             for k in 0..j {
                 s += jac[k * j + c1] * res[k];
             }
-            g[c1] = -s;
+            g[c1] = -s - mu2 * (q[c1] - q0[c1]);
         }
         // Singular JᵀJ (a joint the model does not respond to: dead ReLUs): fall back to the
         // fixed step, as Algorithm 1 but with a usable size.
@@ -361,7 +375,7 @@ pub fn newton_refine<M: WindowModel + ?Sized>(
         fwd.eval_jacobian(q_new, pred_new, jac_new);
         r.evals += 1;
         r.iterations += 1;
-        let mut cost_new = 0.0;
+        let mut cost_new = prior(q_new);
         for c in 0..j {
             let d = pred_new[c] - q_desired[c];
             cost_new += d * d;
@@ -561,6 +575,36 @@ mod tests {
         for c in 0..3 {
             assert!((2.0 * q[c] + 0.1 * (c as f64 + 1.0) - d[c]).abs() < 1e-6);
         }
+    }
+
+    #[test]
+    fn prior_solves_the_regularised_problem() {
+        // Toy: f(q) = 2q + h. With the prior, the minimiser of |2q + h − d|² + μ²|q − q₀|² is
+        // q = (2(d − h) + μ²q₀) / (4 + μ²), per joint: checked in closed form.
+        let mut toy = Toy::new(2, 2);
+        toy.set_history(&[1.0, 2.0]);
+        let d = [10.0, -5.0];
+        let q0 = [1.0, 1.0];
+        let mut q = q0;
+        let mut pred = [0.0; 2];
+        let mu: f64 = 1.5;
+        let p = NewtonParams {
+            damping_init: 1e-9,
+            prior_weight: mu,
+            max_evals: 20,
+            ..Default::default()
+        };
+        newton_refine(&mut toy, &d, &mut q, &p, &mut pred, &mut |_| {}, &mut || false);
+        let h = [0.1, 0.2];
+        for c in 0..2 {
+            let want = (2.0 * (d[c] - h[c]) + mu * mu * q0[c]) / (4.0 + mu * mu);
+            assert!((q[c] - want).abs() < 1e-6, "joint {c}: {} vs {want}", q[c]);
+        }
+        // μ = 0 is plain Gauss–Newton: the model's answer exactly.
+        let mut q = q0;
+        let p0 = NewtonParams { prior_weight: 0.0, ..p };
+        newton_refine(&mut toy, &d, &mut q, &p0, &mut pred, &mut |_| {}, &mut || false);
+        assert!((2.0 * q[0] + h[0] - d[0]).abs() < 1e-6);
     }
 
     /// A model with a dead joint (zero Jacobian column) but which still responds when moved
