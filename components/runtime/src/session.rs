@@ -1,0 +1,942 @@
+//! Running a whole pipeline from a library caller: [`LockstepSession`] (tests, `collect`,
+//! `evaluate`: step a reproducible multi-process run tick by tick and read its samples back) and
+//! [`RealtimeSession`] (`bowden run`: start, supervise, stop on Ctrl-C or after a time).
+//!
+//! # Lockstep
+//!
+//! ```no_run
+//! use bowden_runtime::config::{Mode, Overrides, PipelineConfig};
+//! use bowden_runtime::session::{LockstepSession, SessionOptions};
+//! use bowden_runtime::launch::LaunchOptions;
+//!
+//! let ov = Overrides { mode: Some(Mode::Lockstep), prefix: Some("eval42_".into()), ..Default::default() };
+//! let cfg = PipelineConfig::load_arg("configs/sim.toml", &ov)?;
+//! let mut opts = SessionOptions::new(LaunchOptions::current_exe()?);
+//! opts.taps.plant_state = true;
+//! let mut s = LockstepSession::start(&cfg, opts)?;        // children up, stale resources cleaned
+//! for _ in 0..2000 {
+//!     let out = s.step()?;                                  // tick k done by every stage
+//!     if let Some(p) = out.plant_state { println!("{:?}", &p.q_phy_deg[..5]); }
+//! }
+//! let report = s.shutdown()?;                               // children exit, nothing left in /dev/shm
+//! println!("{}", report.format_summary());
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+//!
+//! Each [`LockstepSession::step`] publishes `ClockTick` k and returns once every live stage has
+//! reported tick k done; the samples of tick k of the tapped services are in the returned
+//! [`TickOutputs`]. When the pipeline has no stage producing `bowden/joint_target` (no
+//! trajectory node), the session is the target source: call
+//! [`LockstepSession::step_with_target`] with q_desired for each tick.
+//!
+//! A child that dies mid-run is detected (its exit status is in [`TickOutputs::events`]); its
+//! stages are declared stopped on its behalf so the others go on (the actuator's watchdog then
+//! holds the last safe command), its iceoryx2 resources are removed, and it is restarted
+//! between two ticks if its restart policy says so.
+
+use crate::cleanup::{self, CleanupReport};
+use crate::config::PipelineConfig;
+use crate::launch::{LaunchOptions, SpawnError, Supervisor};
+use crate::ports::{Input, Output, PortContext, PortError, Waiter, Wakeup};
+use crate::stage::state;
+use crate::stats::fmt_ns;
+use crate::sys::{self, monotonic_ns, Reactor};
+use bowden_interfaces::{
+    services, ClockTick, ComponentStatus, JointCommand, JointEstimate, JointTarget, MarkerSet, MotorCommand,
+    PlantState, MAX_JOINTS,
+};
+use std::time::{Duration, Instant};
+
+/// Why a session failed.
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    #[error(transparent)]
+    Port(#[from] PortError),
+    #[error(transparent)]
+    Spawn(#[from] SpawnError),
+    #[error("start-up: {0}")]
+    Startup(String),
+    #[error("tick {tick}: no progress for {waited_ms} ms, waiting for: {waiting}")]
+    Stalled { tick: u64, waited_ms: u64, waiting: String },
+    #[error("interrupted by signal")]
+    Interrupted,
+    #[error("{0}")]
+    Usage(String),
+    #[error("launcher: {0}")]
+    Os(String),
+}
+
+/// Which services a lockstep session reads back per tick.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Taps {
+    pub joint_target: bool,
+    pub joint_command: bool,
+    pub motor_command: bool,
+    pub plant_state: bool,
+    pub marker_set: bool,
+    pub joint_estimate: bool,
+}
+
+impl Taps {
+    pub fn all() -> Self {
+        Self {
+            joint_target: true,
+            joint_command: true,
+            motor_command: true,
+            plant_state: true,
+            marker_set: true,
+            joint_estimate: true,
+        }
+    }
+}
+
+/// Options of a session.
+#[derive(Debug, Clone)]
+pub struct SessionOptions {
+    pub launch: LaunchOptions,
+    pub taps: Taps,
+    /// Print start-up, events and the summary to stderr.
+    pub verbose: bool,
+    /// Lockstep: give up on a tick after this long without progress.
+    pub stall_timeout: Duration,
+    /// Remove the prefix's remaining files at the end if no node is left (a per-run prefix).
+    pub remove_prefix_files: bool,
+    /// Real time: the run lasts until SIGINT/SIGTERM (for the start-up message only).
+    pub until_signal: bool,
+}
+
+impl SessionOptions {
+    pub fn new(launch: LaunchOptions) -> Self {
+        Self {
+            launch,
+            taps: Taps::default(),
+            verbose: false,
+            stall_timeout: Duration::from_secs(60),
+            remove_prefix_files: true,
+            until_signal: false,
+        }
+    }
+}
+
+/// Samples of one lockstep tick.
+#[derive(Debug, Clone, Default)]
+pub struct TickOutputs {
+    pub tick: u64,
+    pub t_sim_ns: u64,
+    pub joint_target: Option<JointTarget>,
+    pub joint_command: Option<JointCommand>,
+    pub motor_command: Option<MotorCommand>,
+    pub plant_state: Option<PlantState>,
+    pub marker_set: Option<MarkerSet>,
+    pub joint_estimate: Option<JointEstimate>,
+    /// Supervision events during this tick (a process exited, was restarted).
+    pub events: Vec<String>,
+}
+
+/// What a run did, for the exit summary.
+#[derive(Debug, Clone, Default)]
+pub struct RunReport {
+    pub mode: String,
+    /// From spawning to every stage ready.
+    pub startup: Duration,
+    pub ticks: u64,
+    pub elapsed: Duration,
+    /// Last status of every stage, in config order.
+    pub statuses: Vec<(String, Option<ComponentStatus>)>,
+    pub events: Vec<String>,
+    pub cleanup_at_start: CleanupReport,
+    pub forced_stops: Vec<(String, &'static str)>,
+    pub files_removed: usize,
+}
+
+fn state_name(s: u32) -> &'static str {
+    match s {
+        state::STARTING => "starting",
+        state::RUNNING => "running",
+        state::DEGRADED => "degraded",
+        state::STOPPED => "stopped",
+        state::ESTOP => "e-stop",
+        _ => "?",
+    }
+}
+
+impl RunReport {
+    /// The status of stage `name` at the end.
+    pub fn status(&self, name: &str) -> Option<&ComponentStatus> {
+        self.statuses
+            .iter()
+            .find(|(n, _)| n == name)
+            .and_then(|(_, s)| s.as_ref())
+    }
+
+    /// The table printed at exit: one row per stage, latency since origin (real time).
+    pub fn format_summary(&self) -> String {
+        use std::fmt::Write;
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "bowden run ({}): start-up {} ms, {} ticks in {:.2} s",
+            self.mode,
+            self.startup.as_millis(),
+            self.ticks,
+            self.elapsed.as_secs_f64()
+        );
+        let _ = writeln!(
+            s,
+            "| stage | state | cycles | misses | rejected | faults | p50 | p99 | p99.9 | max |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"
+        );
+        for (name, st) in &self.statuses {
+            match st {
+                Some(c) => {
+                    let lat = |v: u64| if v == 0 { "-".to_string() } else { fmt_ns(v) };
+                    let _ = writeln!(
+                        s,
+                        "| {name} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+                        state_name(c.state),
+                        c.cycles,
+                        c.deadline_misses,
+                        c.rejected_samples,
+                        c.faults,
+                        lat(c.latency_p50_ns),
+                        lat(c.latency_p99_ns),
+                        lat(c.latency_p999_ns),
+                        lat(c.latency_max_ns)
+                    );
+                }
+                None => {
+                    let _ = writeln!(s, "| {name} | no status | | | | | | | | |");
+                }
+            }
+        }
+        for e in &self.events {
+            let _ = writeln!(s, "event: {e}");
+        }
+        for (p, how) in &self.forced_stops {
+            let _ = writeln!(s, "process `{p}` did not exit in time: {how}");
+        }
+        s
+    }
+}
+
+struct StageView {
+    name: String,
+    process: usize,
+    /// Reports status (built-in, or external with `reports_status`).
+    tracked: bool,
+    alive: bool,
+    started: bool,
+    done: Option<u64>,
+    last: Option<ComponentStatus>,
+}
+
+/// The launcher's iceoryx2 side: clock, statuses, wake-ups.
+struct Core {
+    stages: Vec<StageView>,
+    clock_out: Output<ClockTick>,
+    clock_wakeup: Wakeup,
+    status_out: Output<ComponentStatus>,
+    status_in: Input<ComponentStatus>,
+    status_waiter: Waiter,
+    /// Per stage, wake-ups of its outputs (to release its consumers when it dies).
+    out_wakeups: Vec<Vec<Wakeup>>,
+    reactor: Reactor,
+    ports: PortContext,
+}
+
+impl Core {
+    fn new(cfg: &PipelineConfig) -> Result<Self, SessionError> {
+        let ports = PortContext::new("launcher", &cfg.ipc())?;
+        let mut reactor = Reactor::new().map_err(|e| SessionError::Os(format!("epoll: {e}")))?;
+        let status_in = ports.input::<ComponentStatus>(services::COMPONENT_STATUS, 256)?;
+        let status_waiter = ports.listener(services::COMPONENT_STATUS)?;
+        reactor
+            .add(status_waiter.fd())
+            .map_err(|e| SessionError::Os(format!("epoll: {e}")))?;
+        let mut out_wakeups = Vec::new();
+        let mut stages = Vec::new();
+        for s in &cfg.stages {
+            let process = cfg.processes.iter().position(|p| p.name == s.process).unwrap_or(0);
+            let mut w = Vec::new();
+            for o in &s.outputs {
+                w.push(ports.notifier(o)?);
+            }
+            out_wakeups.push(w);
+            stages.push(StageView {
+                name: s.name.clone(),
+                process,
+                tracked: cfg.processes[process].reports_status,
+                alive: true,
+                started: false,
+                done: None,
+                last: None,
+            });
+        }
+        Ok(Self {
+            stages,
+            clock_out: ports.output::<ClockTick>(services::CLOCK)?,
+            clock_wakeup: ports.notifier(services::CLOCK)?,
+            status_out: ports.output::<ComponentStatus>(services::COMPONENT_STATUS)?,
+            status_in,
+            status_waiter,
+            out_wakeups,
+            reactor,
+            ports,
+        })
+    }
+
+    fn drain_statuses(&mut self) {
+        self.status_waiter.drain();
+        while let Some(st) = self.status_in.recv() {
+            let name = st.name();
+            let Some(v) = self.stages.iter_mut().find(|v| v.name == name) else {
+                continue;
+            };
+            // Our own "stopped on behalf of" samples come back too: they agree with our view.
+            match st.state {
+                state::STOPPED => v.alive = false,
+                state::STARTING => {
+                    v.alive = true;
+                    v.started = true;
+                }
+                _ => {
+                    v.alive = true;
+                    v.started = true;
+                    v.done = Some(st.header.tick);
+                }
+            }
+            v.last = Some(st);
+        }
+    }
+
+    fn wait(&self, timeout: Duration) -> Result<bool, SessionError> {
+        let w = self
+            .reactor
+            .wait(Some(monotonic_ns() + timeout.as_nanos() as u64))
+            .map_err(|e| SessionError::Os(format!("epoll: {e}")))?;
+        Ok(w.terminate)
+    }
+
+    fn publish_clock(&mut self, tick: u64, t_sim_ns: u64, dt_ns: u64, shutdown: bool) -> Result<(), SessionError> {
+        self.clock_out.publish(
+            tick,
+            t_sim_ns,
+            ClockTick {
+                t_sim_ns,
+                dt_ns,
+                shutdown: shutdown as u32,
+                ..Default::default()
+            },
+        )?;
+        self.clock_wakeup.notify()?;
+        Ok(())
+    }
+
+    /// Declares the stages of a dead process stopped, so their consumers stop waiting for them.
+    fn declare_dead(&mut self, process: usize, tick: u64) -> Result<(), SessionError> {
+        for i in 0..self.stages.len() {
+            if self.stages[i].process != process {
+                continue;
+            }
+            self.stages[i].alive = false;
+            let mut s = ComponentStatus {
+                state: state::STOPPED,
+                ..Default::default()
+            };
+            s.set_name(&self.stages[i].name);
+            self.status_out.publish(tick, 0, s)?;
+            for w in &self.out_wakeups[i] {
+                w.notify()?;
+            }
+        }
+        Ok(())
+    }
+
+    fn statuses(&self) -> Vec<(String, Option<ComponentStatus>)> {
+        self.stages.iter().map(|v| (v.name.clone(), v.last)).collect()
+    }
+}
+
+/// Removes what a session leaves in shared memory when it is dropped without `shutdown` (an
+/// error or a panic on the caller's side): declared last in a session, so it runs after the
+/// supervisor has stopped the children and the launcher's node is gone.
+struct CleanupGuard {
+    ipc: crate::ports::IpcSettings,
+    armed: bool,
+    remove_files: bool,
+}
+
+impl Drop for CleanupGuard {
+    fn drop(&mut self) {
+        if self.armed {
+            let _ = cleanup::remove_stale_nodes(&self.ipc);
+            if self.remove_files {
+                let _ = cleanup::remove_prefix_files(&self.ipc);
+            }
+        }
+    }
+}
+
+/// Starts the children and waits until every status-reporting stage has announced itself.
+fn start_common(
+    cfg: &PipelineConfig,
+    opts: &SessionOptions,
+) -> Result<(Supervisor, Core, CleanupReport, Duration), SessionError> {
+    sys::install_termination_handlers().map_err(|e| SessionError::Os(format!("signal handlers: {e}")))?;
+    let ipc = cfg.ipc();
+    // Before our own node exists (iceoryx2 would clean silently on node creation): so the
+    // report says what a previous, killed run left behind.
+    let cleanup_at_start = cleanup::remove_stale_nodes(&ipc)?;
+    if opts.verbose && cleanup_at_start.dead_removed + cleanup_at_start.dead_failed > 0 {
+        eprintln!(
+            "launcher: removed stale iceoryx2 resources of {} dead node(s) under prefix `{}` ({} failed)",
+            cleanup_at_start.dead_removed, ipc.prefix, cleanup_at_start.dead_failed
+        );
+    }
+    let mut core = Core::new(cfg)?;
+    let mut sup = Supervisor::new(cfg, opts.launch.clone());
+    let t0 = Instant::now();
+    // A failed or interrupted start-up stops what was started and leaves nothing behind.
+    let guard = CleanupGuard {
+        ipc: ipc.clone(),
+        armed: true,
+        remove_files: opts.remove_prefix_files,
+    };
+    let startup = wait_ready(cfg, &mut sup, &mut core, t0);
+    if let Err(e) = startup {
+        // No clock tick was sent yet: ask the others to stop now rather than wait for them.
+        sup.signal_all(libc::SIGTERM);
+        sup.stop_all(Duration::from_millis(cfg.runtime.shutdown_timeout_ms));
+        drop(sup);
+        drop(core);
+        drop(guard);
+        return Err(e);
+    }
+    let mut guard = guard;
+    guard.armed = false;
+    let startup = t0.elapsed();
+    // Connect the clock to every subscriber now, so tick 0 reaches all.
+    core.clock_out.update_connections()?;
+    Ok((sup, core, cleanup_at_start, startup))
+}
+
+fn wait_ready(cfg: &PipelineConfig, sup: &mut Supervisor, core: &mut Core, t0: Instant) -> Result<(), SessionError> {
+    sup.spawn_all()?;
+    let deadline = t0 + Duration::from_millis(cfg.runtime.startup_timeout_ms);
+    loop {
+        core.drain_statuses();
+        if core.stages.iter().all(|v| !v.tracked || v.started) {
+            break;
+        }
+        if let Some((i, status, _)) = sup.poll_exits().into_iter().next() {
+            return Err(SessionError::Startup(format!(
+                "process `{}` exited during start-up ({status})",
+                sup.spec(i).name
+            )));
+        }
+        if Instant::now() >= deadline {
+            let waiting: Vec<&str> = core
+                .stages
+                .iter()
+                .filter(|v| v.tracked && !v.started)
+                .map(|v| v.name.as_str())
+                .collect();
+            return Err(SessionError::Startup(format!(
+                "no status from {} within {} ms",
+                waiting.join(", "),
+                cfg.runtime.startup_timeout_ms
+            )));
+        }
+        if core.wait(Duration::from_millis(20))? {
+            return Err(SessionError::Interrupted);
+        }
+    }
+    Ok(())
+}
+
+/// A pipeline stepped tick by tick on a simulated clock. See the module documentation.
+pub struct LockstepSession {
+    cfg: PipelineConfig,
+    opts: SessionOptions,
+    tick: u64,
+    t0: Instant,
+    report: RunReport,
+    target_out: Option<(Output<JointTarget>, Wakeup)>,
+    taps: TapInputs,
+    pending_restarts: Vec<usize>,
+    // Field order = drop order: the supervisor stops children before our node goes away.
+    sup: Supervisor,
+    core: Core,
+    guard: CleanupGuard,
+}
+
+#[derive(Default)]
+struct TapInputs {
+    joint_target: Option<Input<JointTarget>>,
+    joint_command: Option<Input<JointCommand>>,
+    motor_command: Option<Input<MotorCommand>>,
+    plant_state: Option<Input<PlantState>>,
+    marker_set: Option<Input<MarkerSet>>,
+    joint_estimate: Option<Input<JointEstimate>>,
+}
+
+impl LockstepSession {
+    /// Cleans stale resources of the prefix, starts every process of `cfg` (which must be in
+    /// lockstep mode) and waits until all are ready.
+    pub fn start(cfg: &PipelineConfig, opts: SessionOptions) -> Result<Self, SessionError> {
+        if !cfg.lockstep() {
+            return Err(SessionError::Usage(format!(
+                "{}: a lockstep session needs `[runtime] mode = \"lockstep\"` (or the mode override)",
+                cfg.origin
+            )));
+        }
+        let (sup, core, cleanup_at_start, startup) = start_common(cfg, &opts)?;
+        let p = &core.ports;
+        let t = opts.taps;
+        let taps = TapInputs {
+            joint_target: if t.joint_target {
+                Some(p.input(services::JOINT_TARGET, 8)?)
+            } else {
+                None
+            },
+            joint_command: if t.joint_command {
+                Some(p.input(services::JOINT_COMMAND, 8)?)
+            } else {
+                None
+            },
+            motor_command: if t.motor_command {
+                Some(p.input(services::MOTOR_COMMAND, 8)?)
+            } else {
+                None
+            },
+            plant_state: if t.plant_state {
+                Some(p.input(services::PLANT_STATE, 8)?)
+            } else {
+                None
+            },
+            marker_set: if t.marker_set {
+                Some(p.input(services::MARKER_SET, 8)?)
+            } else {
+                None
+            },
+            joint_estimate: if t.joint_estimate {
+                Some(p.input(services::JOINT_ESTIMATE, 8)?)
+            } else {
+                None
+            },
+        };
+        let target_out = if cfg.producer_of(services::JOINT_TARGET).is_none() {
+            Some((
+                p.output::<JointTarget>(services::JOINT_TARGET)?,
+                p.notifier(services::JOINT_TARGET)?,
+            ))
+        } else {
+            None
+        };
+        if opts.verbose {
+            eprintln!(
+                "launcher: {} process(es) ready in {} ms (lockstep, prefix `{}`)",
+                sup.len(),
+                startup.as_millis(),
+                cfg.runtime.prefix
+            );
+        }
+        Ok(Self {
+            cfg: cfg.clone(),
+            tick: 0,
+            t0: Instant::now(),
+            report: RunReport {
+                mode: "lockstep".into(),
+                startup,
+                cleanup_at_start,
+                ..Default::default()
+            },
+            target_out,
+            taps,
+            pending_restarts: Vec::new(),
+            guard: CleanupGuard {
+                ipc: cfg.ipc(),
+                armed: true,
+                remove_files: opts.remove_prefix_files,
+            },
+            opts,
+            sup,
+            core,
+        })
+    }
+
+    /// Ticks completed so far.
+    pub fn ticks_done(&self) -> u64 {
+        self.tick
+    }
+
+    /// Simulated time step, ns.
+    pub fn dt_ns(&self) -> u64 {
+        self.cfg.period_ns()
+    }
+
+    /// Process ids of the children, by process name.
+    pub fn pids(&self) -> Vec<(String, u32)> {
+        self.sup.pids()
+    }
+
+    /// Whether the session itself publishes the targets (no trajectory stage).
+    pub fn drives_targets(&self) -> bool {
+        self.target_out.is_some()
+    }
+
+    /// Runs one tick of a pipeline that has its own trajectory stage.
+    pub fn step(&mut self) -> Result<TickOutputs, SessionError> {
+        if self.target_out.is_some() {
+            return Err(SessionError::Usage(
+                "the pipeline has no trajectory stage: use step_with_target".into(),
+            ));
+        }
+        self.step_inner(None)
+    }
+
+    /// Runs one tick with q_desired given by the caller (pipelines without a trajectory stage).
+    pub fn step_with_target(&mut self, q_desired_deg: &[f64]) -> Result<TickOutputs, SessionError> {
+        if self.target_out.is_none() {
+            return Err(SessionError::Usage(
+                "the pipeline has a trajectory stage producing the targets: use step".into(),
+            ));
+        }
+        if q_desired_deg.len() > MAX_JOINTS {
+            return Err(SessionError::Usage(format!(
+                "{} joints given, at most {MAX_JOINTS}",
+                q_desired_deg.len()
+            )));
+        }
+        self.step_inner(Some(q_desired_deg))
+    }
+
+    fn step_inner(&mut self, target: Option<&[f64]>) -> Result<TickOutputs, SessionError> {
+        let k = self.tick;
+        let dt = self.cfg.period_ns();
+        let t_sim = k * dt;
+        let mut out = TickOutputs {
+            tick: k,
+            t_sim_ns: t_sim,
+            ..Default::default()
+        };
+        // Restarts happen between ticks, so a new instance joins at a tick boundary.
+        for i in std::mem::take(&mut self.pending_restarts) {
+            self.restart_process(i, &mut out)?;
+        }
+        if let (Some(q), Some((o, w))) = (target, self.target_out.as_mut()) {
+            let mut jt = JointTarget {
+                n_joints: q.len() as u32,
+                ..Default::default()
+            };
+            jt.q_desired_deg[..q.len()].copy_from_slice(q);
+            o.publish(k, t_sim, jt)?;
+            w.notify()?;
+        }
+        self.core.publish_clock(k, t_sim, dt, false)?;
+        let mut last_progress = Instant::now();
+        let mut last_done = 0usize;
+        loop {
+            self.core.drain_statuses();
+            let done = self
+                .core
+                .stages
+                .iter()
+                .filter(|v| !v.tracked || !v.alive || v.done.is_some_and(|d| d >= k))
+                .count();
+            if done == self.core.stages.len() {
+                break;
+            }
+            if done != last_done {
+                last_done = done;
+                last_progress = Instant::now();
+            }
+            self.supervise(k, &mut out)?;
+            if sys::termination_requested() {
+                return Err(SessionError::Interrupted);
+            }
+            if last_progress.elapsed() > self.opts.stall_timeout {
+                let waiting: Vec<String> = self
+                    .core
+                    .stages
+                    .iter()
+                    .filter(|v| v.tracked && v.alive && v.done.is_none_or(|d| d < k))
+                    .map(|v| v.name.clone())
+                    .collect();
+                return Err(SessionError::Stalled {
+                    tick: k,
+                    waited_ms: last_progress.elapsed().as_millis() as u64,
+                    waiting: waiting.join(", "),
+                });
+            }
+            self.core.wait(Duration::from_millis(20))?;
+        }
+        // One more look: a child that died right at the end of the tick.
+        self.supervise(k, &mut out)?;
+        let t = &mut self.taps;
+        out.joint_target = t.joint_target.as_mut().and_then(|i| i.take_tick(k));
+        out.joint_command = t.joint_command.as_mut().and_then(|i| i.take_tick(k));
+        out.motor_command = t.motor_command.as_mut().and_then(|i| i.take_tick(k));
+        out.plant_state = t.plant_state.as_mut().and_then(|i| i.take_tick(k));
+        out.marker_set = t.marker_set.as_mut().and_then(|i| i.take_tick(k));
+        out.joint_estimate = t.joint_estimate.as_mut().and_then(|i| i.take_tick(k));
+        self.tick += 1;
+        Ok(out)
+    }
+
+    fn supervise(&mut self, k: u64, out: &mut TickOutputs) -> Result<(), SessionError> {
+        for (i, status, success) in self.sup.poll_exits() {
+            let name = self.sup.spec(i).name.clone();
+            // Its resources (publisher slots, shared memory) must go before anyone reuses them.
+            let cleaned = cleanup::remove_stale_nodes(&self.cfg.ipc())?;
+            self.core.declare_dead(i, k)?;
+            let restart = self.sup.wants_restart(i, success);
+            let ev = format!(
+                "tick {k}: process `{name}` exited ({status}); stale resources of {} node(s) removed; {}",
+                cleaned.dead_removed,
+                if restart {
+                    "restarting at the next tick"
+                } else {
+                    "not restarted, the others go on"
+                }
+            );
+            if self.opts.verbose {
+                eprintln!("launcher: {ev}");
+            }
+            out.events.push(ev.clone());
+            self.report.events.push(ev);
+            if restart {
+                self.pending_restarts.push(i);
+            } else {
+                self.sup.mark_gone(i);
+            }
+        }
+        Ok(())
+    }
+
+    fn restart_process(&mut self, i: usize, out: &mut TickOutputs) -> Result<(), SessionError> {
+        self.sup.restart(i)?;
+        for v in self.core.stages.iter_mut().filter(|v| v.process == i) {
+            v.started = false;
+        }
+        let deadline = Instant::now() + Duration::from_millis(self.cfg.runtime.startup_timeout_ms);
+        loop {
+            self.core.drain_statuses();
+            if self.core.stages.iter().filter(|v| v.process == i).all(|v| v.started) {
+                break;
+            }
+            if let Some((_, status, _)) = self.sup.poll_exits().into_iter().find(|e| e.0 == i) {
+                self.sup.mark_gone(i);
+                let ev = format!(
+                    "process `{}` exited again during restart ({status})",
+                    self.sup.spec(i).name
+                );
+                out.events.push(ev.clone());
+                self.report.events.push(ev);
+                return Ok(());
+            }
+            if Instant::now() >= deadline {
+                return Err(SessionError::Startup(format!(
+                    "restarted process `{}` sent no status",
+                    self.sup.spec(i).name
+                )));
+            }
+            self.core.wait(Duration::from_millis(20))?;
+        }
+        self.core.clock_out.update_connections()?;
+        let ev = format!(
+            "tick {}: process `{}` restarted (restart {})",
+            self.tick,
+            self.sup.spec(i).name,
+            self.sup.restarts(i)
+        );
+        out.events.push(ev.clone());
+        self.report.events.push(ev);
+        Ok(())
+    }
+
+    /// Sends the shutdown tick, waits for the children to exit (signalling stragglers), and
+    /// removes what the run leaves in shared memory.
+    pub fn shutdown(mut self) -> Result<RunReport, SessionError> {
+        let k = self.tick;
+        self.core
+            .publish_clock(k, k * self.cfg.period_ns(), self.cfg.period_ns(), true)?;
+        let grace = Duration::from_millis(self.cfg.runtime.shutdown_timeout_ms);
+        self.report.forced_stops = self.sup.stop_all(grace);
+        self.core.drain_statuses();
+        self.report.ticks = k;
+        self.report.elapsed = self.t0.elapsed();
+        self.report.statuses = self.core.statuses();
+        let ipc = self.cfg.ipc();
+        let remove_files = self.opts.remove_prefix_files;
+        let report = std::mem::take(&mut self.report);
+        self.guard.armed = false;
+        drop(self);
+        let mut report = report;
+        cleanup::remove_stale_nodes(&ipc)?;
+        if remove_files {
+            report.files_removed = cleanup::remove_prefix_files(&ipc)?;
+        }
+        Ok(report)
+    }
+}
+
+/// `bowden run` in real-time mode: start, supervise, stop.
+pub struct RealtimeSession {
+    cfg: PipelineConfig,
+    opts: SessionOptions,
+    start_ns: u64,
+    report: RunReport,
+    sup: Supervisor,
+    core: Core,
+    guard: CleanupGuard,
+}
+
+impl RealtimeSession {
+    /// Cleans stale resources, starts every process, waits for them, and sends the common start
+    /// time (a short lead ahead, so every periodic process starts on the same grid).
+    pub fn start(cfg: &PipelineConfig, opts: SessionOptions) -> Result<Self, SessionError> {
+        if cfg.lockstep() {
+            return Err(SessionError::Usage(format!(
+                "{}: a real-time session needs `[runtime] mode = \"realtime\"`",
+                cfg.origin
+            )));
+        }
+        let (sup, mut core, cleanup_at_start, startup) = start_common(cfg, &opts)?;
+        let start_ns = monotonic_ns() + 20_000_000;
+        core.publish_clock(0, start_ns, cfg.period_ns(), false)?;
+        if opts.verbose {
+            eprintln!(
+                "launcher: {} process(es) ready in {} ms (real time, prefix `{}`); running{}",
+                sup.len(),
+                startup.as_millis(),
+                cfg.runtime.prefix,
+                if opts.until_signal { " until Ctrl-C" } else { "" }
+            );
+        }
+        Ok(Self {
+            guard: CleanupGuard {
+                ipc: cfg.ipc(),
+                armed: true,
+                remove_files: opts.remove_prefix_files,
+            },
+            cfg: cfg.clone(),
+            opts,
+            start_ns,
+            report: RunReport {
+                mode: "realtime".into(),
+                startup,
+                cleanup_at_start,
+                ..Default::default()
+            },
+            sup,
+            core,
+        })
+    }
+
+    /// Process ids of the children.
+    pub fn pids(&self) -> Vec<(String, u32)> {
+        self.sup.pids()
+    }
+
+    /// Supervises until `duration` has passed (`None`: until SIGINT/SIGTERM).
+    pub fn run_for(&mut self, duration: Option<Duration>) -> Result<(), SessionError> {
+        let t0 = Instant::now();
+        loop {
+            if sys::termination_requested() {
+                return Ok(());
+            }
+            if duration.is_some_and(|d| t0.elapsed() >= d) {
+                return Ok(());
+            }
+            self.core.drain_statuses();
+            for (i, status, success) in self.sup.poll_exits() {
+                let name = self.sup.spec(i).name.clone();
+                let cleaned = cleanup::remove_stale_nodes(&self.cfg.ipc())?;
+                let restart = self.sup.wants_restart(i, success);
+                let ev = format!(
+                    "{:.3} s: process `{name}` exited ({status}); stale resources of {} node(s) removed; {}",
+                    t0.elapsed().as_secs_f64(),
+                    cleaned.dead_removed,
+                    if restart {
+                        "restarting"
+                    } else {
+                        "not restarted, the others go on"
+                    }
+                );
+                if self.opts.verbose {
+                    eprintln!("launcher: {ev}");
+                }
+                self.report.events.push(ev);
+                if restart {
+                    self.sup.restart(i)?;
+                    self.await_restart(i)?;
+                } else {
+                    self.sup.mark_gone(i);
+                }
+            }
+            let left = duration
+                .map(|d| d.saturating_sub(t0.elapsed()))
+                .unwrap_or(Duration::from_millis(100));
+            self.core.wait(left.min(Duration::from_millis(100)))?;
+        }
+    }
+
+    fn await_restart(&mut self, i: usize) -> Result<(), SessionError> {
+        for v in self.core.stages.iter_mut().filter(|v| v.process == i) {
+            v.started = false;
+        }
+        let deadline = Instant::now() + Duration::from_millis(self.cfg.runtime.startup_timeout_ms);
+        while Instant::now() < deadline {
+            self.core.drain_statuses();
+            if self
+                .core
+                .stages
+                .iter()
+                .filter(|v| v.process == i)
+                .all(|v| v.started || !v.tracked)
+            {
+                // The restarted process waits for a start tick: same grid as everyone else.
+                self.core.clock_out.update_connections()?;
+                self.core.publish_clock(0, self.start_ns, self.cfg.period_ns(), false)?;
+                let ev = format!(
+                    "process `{}` restarted (restart {})",
+                    self.sup.spec(i).name,
+                    self.sup.restarts(i)
+                );
+                if self.opts.verbose {
+                    eprintln!("launcher: {ev}");
+                }
+                self.report.events.push(ev);
+                return Ok(());
+            }
+            self.core.wait(Duration::from_millis(20))?;
+        }
+        Err(SessionError::Startup(format!(
+            "restarted process `{}` sent no status",
+            self.sup.spec(i).name
+        )))
+    }
+
+    /// Stops every process (shutdown tick, then signals if needed) and returns the summary.
+    pub fn shutdown(mut self) -> Result<RunReport, SessionError> {
+        let elapsed_ns = monotonic_ns().saturating_sub(self.start_ns);
+        self.core.publish_clock(0, 0, self.cfg.period_ns(), true)?;
+        let grace = Duration::from_millis(self.cfg.runtime.shutdown_timeout_ms);
+        self.report.forced_stops = self.sup.stop_all(grace);
+        self.core.drain_statuses();
+        self.report.ticks = elapsed_ns / self.cfg.period_ns().max(1);
+        self.report.elapsed = Duration::from_nanos(elapsed_ns);
+        self.report.statuses = self.core.statuses();
+        let ipc = self.cfg.ipc();
+        let remove_files = self.opts.remove_prefix_files;
+        let report = std::mem::take(&mut self.report);
+        self.guard.armed = false;
+        drop(self);
+        let mut report = report;
+        cleanup::remove_stale_nodes(&ipc)?;
+        if remove_files {
+            report.files_removed = cleanup::remove_prefix_files(&ipc)?;
+        }
+        Ok(report)
+    }
+}

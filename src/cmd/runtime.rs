@@ -1,0 +1,695 @@
+//! `bowden node`, `bowden run`, `bowden replay`, `bowden estop`, and `bowden bench ipc|cycle`:
+//! thin wrappers over `bowden-runtime`.
+
+use anyhow::{bail, Context};
+use bowden_runtime::bench::{self, IpcVariant, Load, Peer};
+use bowden_runtime::config::{Mode, Overrides, PipelineConfig, SIM_DEFAULT_NAME};
+use bowden_runtime::launch::LaunchOptions;
+use bowden_runtime::ports::{IpcSettings, PortContext};
+use bowden_runtime::replay::{self, Pace};
+use bowden_runtime::rt::Outcome;
+use bowden_runtime::session::{LockstepSession, RealtimeSession, RunReport, SessionOptions};
+use bowden_runtime::stats::fmt_ns;
+use bowden_runtime::{run_process, ProcessOptions};
+use clap::{Args, Subcommand};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+/// Overrides every pipeline command accepts (the launcher passes them on to its children).
+#[derive(Args, Debug, Clone, Default)]
+pub struct OverrideArgs {
+    /// Scheduling mode: lockstep (simulated clock, reproducible) or realtime.
+    #[arg(long)]
+    mode: Option<String>,
+    /// iceoryx2 shared-memory prefix (isolates runs on one machine).
+    #[arg(long)]
+    prefix: Option<String>,
+    /// Service namespace prepended to every service name.
+    #[arg(long)]
+    namespace: Option<String>,
+    /// Record the recorder stage's services to this log (enables the recorder).
+    #[arg(long)]
+    record: Option<PathBuf>,
+    /// Seed of every random process of the run.
+    #[arg(long)]
+    seed: Option<u64>,
+}
+
+impl OverrideArgs {
+    fn overrides(&self) -> anyhow::Result<Overrides> {
+        let mode = match &self.mode {
+            Some(m) => Some(Mode::parse(m).with_context(|| format!("--mode `{m}`: expected lockstep or realtime"))?),
+            None => None,
+        };
+        Ok(Overrides {
+            mode,
+            prefix: self.prefix.clone(),
+            namespace: self.namespace.clone(),
+            record_path: self.record.clone(),
+            seed: self.seed,
+        })
+    }
+}
+
+#[derive(Subcommand)]
+pub enum Command {
+    /// Run one process of a pipeline (`bowden run` starts these; run one by hand to debug it).
+    Node {
+        /// Process name from the config (a stage's name unless stages share a `process`).
+        name: String,
+        /// Pipeline config; `@sim` is the embedded default.
+        #[arg(long)]
+        config: Option<String>,
+        #[command(flatten)]
+        ov: OverrideArgs,
+        /// Real time: start at once instead of waiting for the launcher's start tick.
+        #[arg(long)]
+        standalone: bool,
+        /// No exit summary.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Start a pipeline (default: configs/sim.toml, embedded): every stage its own process,
+    /// supervised; Ctrl-C stops it cleanly and prints the latency summary.
+    Run {
+        /// Pipeline config file (default: configs/sim.toml if present, else the embedded copy).
+        config: Option<PathBuf>,
+        #[command(flatten)]
+        ov: OverrideArgs,
+        /// Stop after this many ticks (lockstep) or control periods (real time).
+        #[arg(long)]
+        ticks: Option<u64>,
+        /// Real time: stop after this many seconds.
+        #[arg(long)]
+        seconds: Option<f64>,
+        /// Children write their output to DIR/<process>.log instead of this terminal.
+        #[arg(long)]
+        log_dir: Option<PathBuf>,
+        /// Children print no exit summaries.
+        #[arg(long)]
+        quiet: bool,
+        /// Also write the run summary as JSON.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
+    /// Feed a recorded log back onto its services, or summarise it.
+    Replay {
+        /// The log (`.blog`; its index `.blog.idx` beside it).
+        log: PathBuf,
+        /// Only print the summary (Markdown; `--json` for machines).
+        #[arg(long)]
+        summary: bool,
+        /// As fast as possible instead of the recorded pace.
+        #[arg(long)]
+        fast: bool,
+        /// Pace factor (2 = twice as fast as recorded).
+        #[arg(long, default_value_t = 1.0)]
+        speed: f64,
+        /// Only these services (comma-separated full names).
+        #[arg(long, value_delimiter = ',')]
+        services: Option<Vec<String>>,
+        #[arg(long, default_value = "bowden_")]
+        prefix: String,
+        #[arg(long, default_value = "")]
+        namespace: String,
+        /// Write the summary as JSON to this file.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
+    /// Remove what dead bowden processes left in shared memory under a prefix (the launcher does
+    /// this at start by itself; for prefixes no run will reuse).
+    Clean {
+        #[arg(long, default_value = "bowden_")]
+        prefix: String,
+    },
+    /// Latch the actuator's e-stop (hold the last safe command), or release it; waits until an
+    /// actuator confirms the new state in its status.
+    Estop {
+        #[arg(long)]
+        release: bool,
+        /// Give up (exit code 1) when no actuator confirms within this many milliseconds.
+        #[arg(long, default_value_t = 2000)]
+        timeout_ms: u64,
+        /// The stage whose status confirms (the pipeline's actuator).
+        #[arg(long, default_value = "actuator")]
+        stage: String,
+        #[arg(long, default_value = "bowden_")]
+        prefix: String,
+        #[arg(long, default_value = "")]
+        namespace: String,
+    },
+}
+
+fn default_config() -> String {
+    if Path::new("configs/sim.toml").exists() {
+        "configs/sim.toml".into()
+    } else {
+        SIM_DEFAULT_NAME.into()
+    }
+}
+
+fn load(arg: &str, ov: &Overrides) -> anyhow::Result<PipelineConfig> {
+    PipelineConfig::load_arg(arg, ov).context("pipeline config")
+}
+
+pub fn run(c: Command) -> anyhow::Result<()> {
+    match c {
+        Command::Node {
+            name,
+            config,
+            ov,
+            standalone,
+            quiet,
+        } => {
+            let cfg = load(&config.unwrap_or_else(default_config), &ov.overrides()?)?;
+            run_process(
+                &cfg,
+                &name,
+                &crate::nodes::factory,
+                &ProcessOptions { standalone, quiet },
+            )
+            .with_context(|| format!("node `{name}`"))?;
+            Ok(())
+        }
+        Command::Run {
+            config,
+            ov,
+            ticks,
+            seconds,
+            log_dir,
+            quiet,
+            json,
+        } => {
+            let arg = config.map(|p| p.display().to_string()).unwrap_or_else(default_config);
+            let cfg = load(&arg, &ov.overrides()?)?;
+            let report = run_pipeline(&cfg, ticks, seconds, log_dir, quiet)?;
+            print!("{}", report.format_summary());
+            if let Some(j) = json {
+                std::fs::write(&j, report_json(&report)).with_context(|| format!("writing {}", j.display()))?;
+            }
+            Ok(())
+        }
+        Command::Replay {
+            log,
+            summary,
+            fast,
+            speed,
+            services,
+            prefix,
+            namespace,
+            json,
+        } => {
+            if !summary {
+                if !(speed.is_finite() && speed > 0.0) {
+                    bail!("--speed {speed}: must be a positive number");
+                }
+                bowden_runtime::sys::install_termination_handlers().context("signal handlers")?;
+                let ctx = PortContext::new("replay", &IpcSettings { prefix, namespace }).context("iceoryx2")?;
+                let pace = if fast { Pace::Fast } else { Pace::Recorded { speed } };
+                let st = replay::replay(&log, &ctx, pace, services.as_deref())
+                    .with_context(|| format!("replaying {}", log.display()))?;
+                println!(
+                    "replayed {} samples in {:.3} s{}",
+                    st.published,
+                    st.seconds,
+                    if st.interrupted { " (interrupted)" } else { "" }
+                );
+            }
+            let s = replay::summarize(&log).with_context(|| format!("reading {}", log.display()))?;
+            print!("{}", s.to_markdown());
+            if let Some(j) = json {
+                let text = serde_json::to_string_pretty(&s).context("summary JSON")?;
+                std::fs::write(&j, text).with_context(|| format!("writing {}", j.display()))?;
+            }
+            Ok(())
+        }
+        Command::Clean { prefix } => {
+            let settings = IpcSettings {
+                prefix,
+                namespace: String::new(),
+            };
+            let r = bowden_runtime::cleanup::remove_stale_nodes(&settings).context("cleaning stale nodes")?;
+            let files = bowden_runtime::cleanup::remove_prefix_files(&settings).context("removing files")?;
+            println!(
+                "prefix `{}`: removed the resources of {} dead node(s) ({} failed), {} leftover file(s); {} node(s) alive",
+                settings.prefix, r.dead_removed, r.dead_failed, files, r.alive
+            );
+            Ok(())
+        }
+        Command::Estop {
+            release,
+            timeout_ms,
+            stage,
+            prefix,
+            namespace,
+        } => {
+            use bowden_interfaces::{services, ComponentStatus, SafetyCommand};
+            use bowden_runtime::stage::state;
+            let ctx = PortContext::new("estop", &IpcSettings { prefix, namespace }).context("iceoryx2")?;
+            let mut statuses = ctx
+                .input::<ComponentStatus>(services::COMPONENT_STATUS, 256)
+                .context("status service")?;
+            let mut out = ctx
+                .output::<SafetyCommand>(services::SAFETY)
+                .context("safety service")?;
+            let wake = ctx.notifier(services::SAFETY).context("safety service")?;
+            let cmd = SafetyCommand {
+                command: if release {
+                    SafetyCommand::RELEASE
+                } else {
+                    SafetyCommand::ESTOP
+                },
+                ..Default::default()
+            };
+            let n = out
+                .publish(0, bowden_runtime::sys::monotonic_ns(), cmd)
+                .context("sending the safety command")?;
+            wake.notify().context("waking the actuator")?;
+            println!(
+                "{} sent to {n} subscriber(s)",
+                if release { "release" } else { "e-stop" }
+            );
+            if n == 0 {
+                bail!("no actuator is listening on {}", services::SAFETY);
+            }
+            // The sample lives in this process's shared memory: stay until it is acted upon.
+            let deadline = std::time::Instant::now() + Duration::from_millis(timeout_ms);
+            loop {
+                while let Some(st) = statuses.recv() {
+                    if st.name() != stage {
+                        continue;
+                    }
+                    let confirmed = if release {
+                        st.state == state::RUNNING || st.state == state::DEGRADED
+                    } else {
+                        st.state == state::ESTOP
+                    };
+                    if confirmed {
+                        println!("confirmed by `{}`", st.name());
+                        return Ok(());
+                    }
+                }
+                if std::time::Instant::now() >= deadline {
+                    bail!(
+                        "stage `{stage}` did not confirm the {} within {timeout_ms} ms",
+                        if release { "release" } else { "e-stop" }
+                    );
+                }
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        }
+    }
+}
+
+fn run_pipeline(
+    cfg: &PipelineConfig,
+    ticks: Option<u64>,
+    seconds: Option<f64>,
+    log_dir: Option<PathBuf>,
+    quiet: bool,
+) -> anyhow::Result<RunReport> {
+    let mut launch = LaunchOptions::current_exe().context("locating the bowden executable")?;
+    launch.quiet_children = quiet;
+    launch.log_dir = log_dir;
+    let mut opts = SessionOptions::new(launch);
+    opts.verbose = true;
+    for line in cfg.describe() {
+        eprintln!("launcher: {line}");
+    }
+    if cfg.lockstep() {
+        let n = ticks.or(cfg.runtime.ticks);
+        let mut s = LockstepSession::start(cfg, opts).context("starting the pipeline")?;
+        let bar = n.map(|n| {
+            let b = indicatif::ProgressBar::new(n);
+            b.set_style(
+                indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} ticks {per_sec} eta {eta}")
+                    .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+            );
+            b
+        });
+        let mut interrupted = false;
+        loop {
+            if n.is_some_and(|n| s.ticks_done() >= n) {
+                break;
+            }
+            if bowden_runtime::sys::termination_requested() {
+                interrupted = true;
+                break;
+            }
+            match s.step() {
+                Ok(out) => {
+                    for e in out.events {
+                        if let Some(b) = &bar {
+                            b.println(format!("launcher: {e}"));
+                        }
+                    }
+                }
+                Err(bowden_runtime::session::SessionError::Interrupted) => {
+                    interrupted = true;
+                    break;
+                }
+                Err(e) => return Err(e).context("lockstep run"),
+            }
+            if let Some(b) = &bar {
+                b.inc(1);
+            }
+        }
+        if let Some(b) = bar {
+            b.finish_and_clear();
+        }
+        if interrupted {
+            eprintln!("launcher: interrupted after {} ticks; stopping", s.ticks_done());
+        }
+        Ok(s.shutdown().context("stopping the pipeline")?)
+    } else {
+        let dur = seconds
+            .or(ticks.map(|t| t as f64 * cfg.period_ns() as f64 / 1e9))
+            .or(cfg.runtime.seconds)
+            .map(Duration::from_secs_f64);
+        opts.until_signal = dur.is_none();
+        let mut s = RealtimeSession::start(cfg, opts).context("starting the pipeline")?;
+        s.run_for(dur).context("supervising")?;
+        if bowden_runtime::sys::termination_requested() {
+            eprintln!("launcher: stopping on signal");
+        }
+        Ok(s.shutdown().context("stopping the pipeline")?)
+    }
+}
+
+fn report_json(r: &RunReport) -> String {
+    let stages: Vec<serde_json::Value> = r
+        .statuses
+        .iter()
+        .map(|(n, s)| match s {
+            Some(c) => serde_json::json!({
+                "stage": n, "state": c.state, "cycles": c.cycles, "deadline_misses": c.deadline_misses,
+                "rejected": c.rejected_samples, "faults": c.faults, "latency_p50_ns": c.latency_p50_ns,
+                "latency_p99_ns": c.latency_p99_ns, "latency_p999_ns": c.latency_p999_ns,
+                "latency_max_ns": c.latency_max_ns,
+            }),
+            None => serde_json::json!({"stage": n, "state": null}),
+        })
+        .collect();
+    serde_json::to_string_pretty(&serde_json::json!({
+        "mode": r.mode, "startup_ms": r.startup.as_secs_f64() * 1e3, "ticks": r.ticks,
+        "elapsed_s": r.elapsed.as_secs_f64(), "stages": stages, "events": r.events,
+        "stale_nodes_removed_at_start": r.cleanup_at_start.dead_removed,
+    }))
+    .unwrap_or_default()
+}
+
+#[derive(Subcommand)]
+pub enum BenchCommand {
+    /// One IPC hop, one way and round trip, bowden ports side by side with raw iceoryx2, for a
+    /// 240-byte sample and 64 B / 640x480 RGBD frames.
+    Ipc {
+        /// Round trips measured per variant.
+        #[arg(long, default_value_t = 20_000)]
+        samples: usize,
+        #[arg(long, default_value_t = 2_000)]
+        warmup: usize,
+        /// Pong side in a thread of this process instead of a second process.
+        #[arg(long)]
+        threads: bool,
+        /// Rounds: the variants run in turn this many times (a fresh peer each), so raw and
+        /// bowden ports see the same machine.
+        #[arg(long, default_value_t = 10)]
+        rounds: usize,
+        /// Run ping and pong under SCHED_FIFO at this priority (when permitted).
+        #[arg(long)]
+        fifo: Option<u8>,
+        /// Only these variants (comma-separated), e.g. raw-sample,ports-sample.
+        #[arg(long, value_delimiter = ',')]
+        variants: Option<Vec<String>>,
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
+    /// The pong side of `bench ipc` (started by it).
+    #[command(hide = true)]
+    IpcPeer {
+        #[arg(long)]
+        variant: String,
+        #[arg(long)]
+        prefix: String,
+        #[arg(long, default_value_t = 0)]
+        warmup: usize,
+        #[arg(long, default_value_t = 0)]
+        expect: usize,
+        #[arg(long)]
+        fifo: Option<u8>,
+    },
+    /// End-to-end control cycle (target → compensated → motor command) at the config's rate,
+    /// with and without CPU load on the other core; deadline misses per stage.
+    Cycle {
+        /// Seconds per run.
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+        /// Pipeline (real time). Default: both layouts, configs/cycle.toml (one process per
+        /// stage) and configs/cycle-grouped.toml (the control chain in one process).
+        #[arg(long)]
+        config: Option<String>,
+        /// none, other (load on the CPUs the pipeline is not pinned to), all (every CPU), or
+        /// both (= none then other).
+        #[arg(long, default_value = "both")]
+        load: String,
+        /// fifo (as configured), other (SCHED_FIFO off in every process), or both.
+        #[arg(long, default_value = "fifo")]
+        sched: String,
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
+}
+
+pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
+    match c {
+        BenchCommand::Ipc {
+            samples,
+            warmup,
+            threads,
+            rounds,
+            fifo,
+            variants,
+            json,
+        } => {
+            let variants: Vec<IpcVariant> = match variants {
+                Some(v) => v
+                    .iter()
+                    .map(|n| {
+                        IpcVariant::parse(n).with_context(|| {
+                            format!(
+                                "--variants `{n}`: known: {}",
+                                IpcVariant::ALL.iter().map(|v| v.name()).collect::<Vec<_>>().join(", ")
+                            )
+                        })
+                    })
+                    .collect::<anyhow::Result<_>>()?,
+                None => IpcVariant::ALL.to_vec(),
+            };
+            let peer = if threads {
+                Peer::Thread
+            } else {
+                Peer::Process(std::env::current_exe().context("locating the bowden executable")?)
+            };
+            let prefix = format!("bwbench{}_", std::process::id());
+            let fifo_note = match fifo {
+                Some(p) => match bench::probe_fifo(p) {
+                    Outcome::Applied => format!(", SCHED_FIFO {p}"),
+                    o => format!(", SCHED_FIFO {p} {o}"),
+                },
+                None => ", normal scheduling".into(),
+            };
+            let rows =
+                bench::ipc_bench(&prefix, samples, warmup, rounds, &peer, &variants, fifo).context("ipc bench")?;
+            let side = if threads {
+                "pong in a second thread"
+            } else {
+                "pong in a second process"
+            };
+            println!(
+                "IPC hop, {samples} round trips per variant in {rounds} interleaved rounds ({side}{fifo_note}):\n"
+            );
+            println!("| variant | one-way p50 | p99 | p99.9 | max | round-trip p50 | p99 | p99.9 | max | allocs/send (system, pool) |");
+            println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|");
+            for r in &rows {
+                println!(
+                    "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2}, {:.2} |",
+                    r.description,
+                    fmt_ns(r.one_way.p50_ns),
+                    fmt_ns(r.one_way.p99_ns),
+                    fmt_ns(r.one_way.p999_ns),
+                    fmt_ns(r.one_way.max_ns),
+                    fmt_ns(r.round_trip.p50_ns),
+                    fmt_ns(r.round_trip.p99_ns),
+                    fmt_ns(r.round_trip.p999_ns),
+                    fmt_ns(r.round_trip.max_ns),
+                    r.system_allocs_per_send,
+                    r.pool_allocs_per_send
+                );
+            }
+            for (raw, ports) in [
+                ("raw-sample", "ports-sample"),
+                ("raw-sample-event", "ports-sample-event"),
+                ("raw-frame-640x480", "ports-frame-640x480"),
+            ] {
+                let a = rows.iter().find(|r| r.variant == raw);
+                let b = rows.iter().find(|r| r.variant == ports);
+                if let (Some(a), Some(b)) = (a, b) {
+                    println!(
+                        "\n{ports} / {raw}: one-way p99 ×{:.2}, round-trip p99 ×{:.2}",
+                        b.one_way.p99_ns as f64 / a.one_way.p99_ns.max(1) as f64,
+                        b.round_trip.p99_ns as f64 / a.round_trip.p99_ns.max(1) as f64
+                    );
+                }
+            }
+            if let Some(j) = json {
+                std::fs::write(&j, serde_json::to_string_pretty(&rows).context("JSON")?)
+                    .with_context(|| format!("writing {}", j.display()))?;
+            }
+            Ok(())
+        }
+        BenchCommand::IpcPeer {
+            variant,
+            prefix,
+            warmup,
+            expect,
+            fifo,
+        } => {
+            let v = IpcVariant::parse(&variant).with_context(|| format!("--variant `{variant}`"))?;
+            bowden_runtime::alloc::enable_pool();
+            if let Some(p) = fifo {
+                let _ = bowden_runtime::rt::set_fifo(p);
+            }
+            let settings = IpcSettings {
+                prefix,
+                namespace: String::new(),
+            };
+            let one_way = bench::run_ipc_peer(v, &settings, warmup, expect).map_err(anyhow::Error::msg)?;
+            println!("{}", serde_json::to_string(&one_way).context("JSON")?);
+            Ok(())
+        }
+        BenchCommand::Cycle {
+            seconds,
+            config,
+            load,
+            sched,
+            json,
+        } => {
+            if !(seconds.is_finite() && seconds > 0.0) {
+                bail!("--seconds {seconds}: must be positive");
+            }
+            let ov = Overrides {
+                mode: Some(Mode::Realtime),
+                prefix: Some(format!("bwcycle{}_", std::process::id())),
+                ..Default::default()
+            };
+            let configs: Vec<String> = match config {
+                Some(c) => vec![c],
+                None => vec!["configs/cycle.toml".into(), "configs/cycle-grouped.toml".into()],
+            };
+            let scheds: &[bool] = match sched.as_str() {
+                "fifo" => &[true],
+                "other" => &[false],
+                "both" => &[true, false],
+                other => bail!("--sched `{other}`: expected fifo, other or both"),
+            };
+            let mut cfgs: Vec<(String, PipelineConfig)> = Vec::new();
+            for c in &configs {
+                let base = self::load(c, &ov)?;
+                let layout = Path::new(c)
+                    .file_stem()
+                    .and_then(|s| s.to_str())
+                    .unwrap_or(c)
+                    .to_string();
+                for &fifo in scheds {
+                    let mut cfg = base.clone();
+                    if !fifo {
+                        for p in cfg.processes.iter_mut() {
+                            if let Some(rt) = p.rt.as_mut() {
+                                rt.sched_fifo = false;
+                            }
+                        }
+                    }
+                    cfgs.push((format!("{layout}{}", if fifo { "" } else { " SCHED_OTHER" }), cfg));
+                }
+            }
+            let pinned: Vec<usize> = cfgs
+                .iter()
+                .flat_map(|(_, c)| c.processes.iter())
+                .filter_map(|p| p.rt.as_ref())
+                .flat_map(|r| r.cpus.iter().copied())
+                .collect::<std::collections::BTreeSet<usize>>()
+                .into_iter()
+                .collect();
+            let n_cpus = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+            let others: Vec<usize> = (0..n_cpus).filter(|c| !pinned.contains(c)).collect();
+            let all: Vec<usize> = (0..n_cpus).collect();
+            let loads: Vec<(&str, Load)> = match load.as_str() {
+                "none" => vec![("no load", Load::None)],
+                "other" => vec![("load other CPU", Load::Cpus(others.clone()))],
+                "all" => vec![("load every CPU", Load::Cpus(all))],
+                "both" => vec![("no load", Load::None), ("load other CPU", Load::Cpus(others.clone()))],
+                other => bail!("--load `{other}`: expected none, other, all or both"),
+            };
+            let fifo = bench::probe_fifo(80);
+            println!(
+                "SCHED_FIFO for this user: {}; pipeline pinned to CPU(s) {:?}; load CPUs for `other`: {:?}",
+                match &fifo {
+                    Outcome::Applied => "available".to_string(),
+                    o => o.to_string(),
+                },
+                pinned,
+                others
+            );
+            let launch = LaunchOptions::current_exe().context("locating the bowden executable")?;
+            let mut results = Vec::new();
+            for (layout, cfg) in &cfgs {
+                for (label, l) in &loads {
+                    let label = format!("{layout}, {label}");
+                    eprintln!("bench cycle: {label}, {seconds} s ...");
+                    let r = bench::cycle_run(cfg, &launch, seconds, l, &label).context("cycle run")?;
+                    results.push(r);
+                }
+            }
+            println!(
+                "\nlatency: periodic drivers (trajectory, plant) since their nominal release, including the \
+                 wake-up; compensator and actuator since the target was created (actuator = end to end, \
+                 target → motor command sent)\n"
+            );
+            println!("| run | stage | cycles | misses | latency p50 | p99 | p99.9 | max |");
+            println!("|---|---|---:|---:|---:|---:|---:|---:|");
+            for r in &results {
+                for (name, st) in &r.report.statuses {
+                    if let Some(s) = st {
+                        println!(
+                            "| {} | {} | {} | {} | {} | {} | {} | {} |",
+                            r.label,
+                            name,
+                            s.cycles,
+                            s.deadline_misses,
+                            fmt_ns(s.latency_p50_ns),
+                            fmt_ns(s.latency_p99_ns),
+                            fmt_ns(s.latency_p999_ns),
+                            fmt_ns(s.latency_max_ns)
+                        );
+                    }
+                }
+                for e in &r.report.events {
+                    println!("event ({}): {e}", r.label);
+                }
+            }
+            if let Some(j) = json {
+                let v: Vec<serde_json::Value> = results
+                    .iter()
+                    .map(|r| serde_json::json!({"run": r.label, "report": serde_json::from_str::<serde_json::Value>(&report_json(&r.report)).unwrap_or_default()}))
+                    .collect();
+                std::fs::write(
+                    &j,
+                    serde_json::to_string_pretty(&serde_json::json!({"sched_fifo": fifo.to_string(), "runs": v}))
+                        .context("JSON")?,
+                )
+                .with_context(|| format!("writing {}", j.display()))?;
+            }
+            Ok(())
+        }
+    }
+}

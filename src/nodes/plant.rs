@@ -1,0 +1,111 @@
+//! Plant node: `MotorCommand` → `bowden_plant::Plant` (the simulated tendon-sheath manipulator)
+//! → `PlantState`, the ground truth the camera renders. Steps every tick (lockstep) or every
+//! period (real time, with the elapsed time as step), holding the last valid command.
+
+use bowden_interfaces::{services, MotorCommand, PlantState};
+use bowden_kinematics::N_CABLES;
+use bowden_plant::{Plant, PlantConfig};
+use bowden_runtime::ports::{Input, Output};
+use bowden_runtime::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
+use serde::Deserialize;
+use std::path::PathBuf;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Params {
+    /// Plant file (configs/plant.toml layout); the shipped one when absent.
+    #[serde(default)]
+    config: Option<PathBuf>,
+}
+
+struct PlantStage {
+    plant: Plant,
+    input: Input<MotorCommand>,
+    out: Output<PlantState>,
+    w_mm: [f64; N_CABLES],
+    last_tick: u64,
+    t_prev_ns: Option<u64>,
+    rejected: u64,
+    step_errors: u64,
+    first_error: Option<String>,
+}
+
+pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
+    let p: Params = env.params()?;
+    let robot = super::robot(env)?;
+    let cfg = match &p.config {
+        Some(f) => PlantConfig::load(super::resolve(env, f)).map_err(|e| env.error(e))?,
+        None => PlantConfig::paper_default(),
+    };
+    let plant = Plant::new(&robot, &cfg, env.pipeline.runtime.seed);
+    // Before the first command the drive holds the straight pose.
+    let w_mm = robot.cables().displacements_mm(&[0.0; 5]);
+    Ok(Box::new(PlantStage {
+        plant,
+        input: env.ports.input(services::MOTOR_COMMAND, 4)?,
+        out: env.ports.output(services::PLANT_STATE)?,
+        w_mm,
+        last_tick: 0,
+        t_prev_ns: None,
+        rejected: 0,
+        step_errors: 0,
+        first_error: None,
+    }))
+}
+
+impl Stage for PlantStage {
+    fn step(&mut self, cx: &StepCx) -> Result<StepReport, StageError> {
+        if let Some(m) = self.input.take(cx.lockstep, cx.tick) {
+            let w: [f64; N_CABLES] = core::array::from_fn(|i| m.cable_disp_mm[i]);
+            if m.n_cables as usize == N_CABLES && w.iter().all(|v| v.is_finite()) {
+                self.w_mm = w;
+                self.last_tick = m.header.tick;
+            } else {
+                self.rejected += 1;
+            }
+        }
+        let now = cx.clock_ns();
+        let dt_ns = if cx.lockstep {
+            cx.dt_ns
+        } else {
+            // Real time: simulate the time that actually passed, so the robot keeps pace with
+            // the wall clock even after a late wake-up.
+            self.t_prev_ns.map(|t| now.saturating_sub(t)).unwrap_or(cx.dt_ns).max(1)
+        };
+        self.t_prev_ns = Some(now);
+        if let Err(e) = self.plant.step(&self.w_mm, dt_ns as f64 * 1e-9) {
+            // An out-of-range cable command leaves the plant as it was: count it and go on.
+            self.step_errors += 1;
+            self.first_error.get_or_insert_with(|| e.to_string());
+        }
+        let mut s = PlantState::default();
+        self.plant.fill_state(&mut s);
+        let tick = if cx.lockstep { cx.tick } else { self.last_tick };
+        let origin = if cx.lockstep { cx.t_now_ns } else { now };
+        self.out.publish(tick, origin, s)?;
+        Ok(StepReport {
+            active: true,
+            t_origin_ns: None,
+        })
+    }
+
+    fn counters(&self) -> StageCounters {
+        StageCounters {
+            rejected: self.rejected + self.step_errors,
+            ..Default::default()
+        }
+    }
+
+    fn summary(&self) -> Vec<String> {
+        let mut v = vec![format!(
+            "plant: t_sim {:.3} s, rejected commands {}, refused steps {}",
+            self.plant.t_sim_ns() as f64 / 1e9,
+            self.rejected,
+            self.step_errors
+        )];
+        if let Some(e) = &self.first_error {
+            v.push(format!("plant: first refused step: {e}"));
+        }
+        v
+    }
+}

@@ -1,0 +1,145 @@
+//! Trajectory node: publishes q_desired (`JointTarget`) each cycle, from the paper's eq. (16)
+//! dataset commands (`bowden_trajectory`) or a CSV file, each command held `pause_s`.
+
+use bowden_interfaces::{services, JointTarget};
+use bowden_runtime::ports::Output;
+use bowden_runtime::stage::{Stage, StageBuildError, StageEnv, StageError, StepCx, StepReport};
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, Deserialize)]
+#[serde(tag = "source", rename_all = "lowercase", deny_unknown_fields)]
+enum Params {
+    /// Eq. (16): `samples` random configurations within the limits, joined by straight
+    /// segments sampled every 3·√5 deg; each command held `pause_s` (0.5 s in the paper).
+    Dataset {
+        samples: usize,
+        #[serde(default = "half_second")]
+        pause_s: f64,
+        #[serde(default = "yes")]
+        repeat: bool,
+    },
+    /// One command per line, `q1,q2,q3,q4,q5` in degrees (`#` comments, an optional header).
+    Csv {
+        file: PathBuf,
+        #[serde(default = "half_second")]
+        pause_s: f64,
+        #[serde(default = "yes")]
+        repeat: bool,
+    },
+}
+
+fn half_second() -> f64 {
+    0.5
+}
+fn yes() -> bool {
+    true
+}
+
+/// Reads a CSV of joint commands; errors name the file and line.
+pub fn read_csv(path: &Path) -> Result<Vec<[f64; 5]>, String> {
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+    let mut out = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+        let parsed: Result<Vec<f64>, _> = fields.iter().map(|f| f.parse::<f64>()).collect();
+        let values = match parsed {
+            Ok(v) => v,
+            // A header line (q1,q2,...) is allowed before the first command.
+            Err(_) if out.is_empty() && fields.iter().all(|f| f.parse::<f64>().is_err()) => continue,
+            Err(e) => return Err(format!("{}:{}: `{line}`: {e}", path.display(), i + 1)),
+        };
+        if values.len() != 5 {
+            return Err(format!(
+                "{}:{}: {} values, expected 5 (q1..q5)",
+                path.display(),
+                i + 1,
+                values.len()
+            ));
+        }
+        if let Some(j) = values.iter().position(|v| !v.is_finite()) {
+            return Err(format!("{}:{}: q{} is not finite", path.display(), i + 1, j + 1));
+        }
+        out.push(core::array::from_fn(|j| values[j]));
+    }
+    if out.is_empty() {
+        return Err(format!("{}: no commands", path.display()));
+    }
+    Ok(out)
+}
+
+struct TrajectoryStage {
+    commands: Vec<[f64; 5]>,
+    hold_ns: u64,
+    repeat: bool,
+    out: Output<JointTarget>,
+}
+
+pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
+    let p: Params = env.params()?;
+    let robot = super::robot(env)?;
+    let (commands, pause_s, repeat) = match p {
+        Params::Dataset {
+            samples,
+            pause_s,
+            repeat,
+        } => {
+            if samples < 2 {
+                return Err(env.error("params.samples: at least 2 configurations"));
+            }
+            let c = bowden_trajectory::dataset_commands(&robot, samples, env.pipeline.runtime.seed);
+            (c, pause_s, repeat)
+        }
+        Params::Csv { file, pause_s, repeat } => {
+            let c = read_csv(&super::resolve(env, &file)).map_err(|e| env.error(e))?;
+            for (i, q) in c.iter().enumerate() {
+                robot
+                    .check_limits(q)
+                    .map_err(|e| env.error(format!("params.file command {}: {e}", i + 1)))?;
+            }
+            (c, pause_s, repeat)
+        }
+    };
+    if !(pause_s.is_finite() && pause_s > 0.0) {
+        return Err(env.error(format!("params.pause_s must be positive, got {pause_s}")));
+    }
+    Ok(Box::new(TrajectoryStage {
+        commands,
+        hold_ns: (pause_s * 1e9) as u64,
+        repeat,
+        out: env.ports.output(services::JOINT_TARGET)?,
+    }))
+}
+
+impl Stage for TrajectoryStage {
+    fn step(&mut self, cx: &StepCx) -> Result<StepReport, StageError> {
+        let t_ns = cx.tick.saturating_mul(cx.dt_ns);
+        let n = self.commands.len() as u64;
+        let mut idx = t_ns / self.hold_ns.max(1);
+        let mut flags = 0;
+        if idx >= n {
+            if self.repeat {
+                idx %= n;
+            } else {
+                idx = n - 1;
+                flags |= JointTarget::FLAG_LAST;
+            }
+        }
+        let mut target = JointTarget {
+            n_joints: 5,
+            flags,
+            ..Default::default()
+        };
+        target.q_desired_deg[..5].copy_from_slice(&self.commands[idx as usize]);
+        // The target comes into existence now: the wake-up time (real time; the wake-up's
+        // lateness after the release is the scheduler's, reported as this stage's response
+        // time) or the tick's simulated time (lockstep).
+        let origin = cx.t_now_ns;
+        self.out.publish(cx.tick, origin, target)?;
+        Ok(StepReport::published(origin))
+    }
+}
