@@ -1,0 +1,77 @@
+//! Adam (Kingma & Ba), as `torch.optim.Adam` with its defaults (β = 0.9, 0.999, ε = 1e-8,
+//! no weight decay) — equivalently candle's `AdamW` with weight decay 0 — over a flat
+//! parameter vector.
+
+#[derive(Debug, Clone)]
+pub struct Adam {
+    pub lr: f64,
+    pub beta1: f64,
+    pub beta2: f64,
+    pub eps: f64,
+    m: Vec<f32>,
+    v: Vec<f32>,
+    t: u64,
+}
+
+impl Adam {
+    pub fn new(n: usize, lr: f64) -> Self {
+        Self {
+            lr,
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-8,
+            m: vec![0.0; n],
+            v: vec![0.0; n],
+            t: 0,
+        }
+    }
+
+    /// Steps taken so far.
+    pub fn steps(&self) -> u64 {
+        self.t
+    }
+
+    pub fn step(&mut self, params: &mut [f32], grad: &[f32]) {
+        self.t += 1;
+        let bc1 = 1.0 - self.beta1.powi(self.t as i32);
+        let bc2 = 1.0 - self.beta2.powi(self.t as i32);
+        let step = (self.lr / bc1) as f32;
+        let inv_sqrt_bc2 = (1.0 / bc2.sqrt()) as f32;
+        let (b1, b2, eps) = (self.beta1 as f32, self.beta2 as f32, self.eps as f32);
+        for i in 0..params.len() {
+            let g = grad[i];
+            let m = b1 * self.m[i] + (1.0 - b1) * g;
+            let v = b2 * self.v[i] + (1.0 - b2) * g * g;
+            self.m[i] = m;
+            self.v[i] = v;
+            params[i] -= step * m / (v.sqrt() * inv_sqrt_bc2 + eps);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn first_step_moves_each_parameter_by_lr() {
+        // With bias correction the first Adam step is lr · sign(g) (up to ε).
+        let mut a = Adam::new(3, 1e-3);
+        let mut p = vec![1.0f32, -2.0, 0.5];
+        a.step(&mut p, &[0.3, -7.0, 1e-3]);
+        assert!((p[0] - (1.0 - 1e-3)).abs() < 1e-6);
+        assert!((p[1] - (-2.0 + 1e-3)).abs() < 1e-6);
+        assert!((p[2] - (0.5 - 1e-3)).abs() < 1e-5);
+    }
+
+    #[test]
+    fn minimises_a_quadratic() {
+        let mut a = Adam::new(2, 0.05);
+        let mut p = vec![3.0f32, -4.0];
+        for _ in 0..2000 {
+            let g = vec![2.0 * p[0], 2.0 * (p[1] + 1.0)];
+            a.step(&mut p, &g);
+        }
+        assert!(p[0].abs() < 1e-2 && (p[1] + 1.0).abs() < 1e-2, "{p:?}");
+    }
+}

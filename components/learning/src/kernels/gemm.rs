@@ -1,0 +1,272 @@
+//! One small GEMM: `C[m×n] += A(m×k) · B[k×n]`, B and C row-major, A read through
+//! arbitrary strides (so `Aᵀ` costs nothing). Every matrix product of the LSTM, FNN and the
+//! heads, forward and backward, is this one form.
+//!
+//! The AVX-512 path is an 8 × 32 register tile (16 zmm accumulators, B rows loaded with
+//! masks at the right edge, A broadcast); the sizes here (≤ 512 wide, K ≤ a few thousand)
+//! keep B's panel in L1/L2, so no packing. The portable path is a plain loop the compiler
+//! vectorises for the baseline target.
+
+/// A strided view of A: element (i, k) is `data[i * rs + k * cs]`.
+#[derive(Clone, Copy)]
+pub struct StridedA<'a> {
+    pub data: &'a [f32],
+    pub rs: usize,
+    pub cs: usize,
+}
+
+/// `C[m×n] += A(m×k)·B[k×n]`, with `B[kk, j] = b[kk * ldb + j]`, `C[i, j] = c[i * ldc + j]`.
+///
+/// Panics if a slice is too short for the given shape (a caller bug, never data).
+#[allow(clippy::too_many_arguments)]
+pub fn gemm_acc(m: usize, n: usize, k: usize, a: StridedA<'_>, b: &[f32], ldb: usize, c: &mut [f32], ldc: usize) {
+    if m == 0 || n == 0 || k == 0 {
+        return;
+    }
+    check_bounds(m, n, k, a, b, ldb, c, ldc);
+    #[cfg(target_arch = "x86_64")]
+    {
+        if super::simd::has_avx512() {
+            // SAFETY: the CPU has AVX-512F (checked); every access is within the slices
+            // (checked by `check_bounds` for the extreme indices of each operand).
+            unsafe { avx512::gemm(m, n, k, a, b, ldb, c, ldc) };
+            return;
+        }
+    }
+    gemm_portable(m, n, k, a, b, ldb, c, ldc);
+}
+
+#[allow(clippy::too_many_arguments)]
+fn check_bounds(m: usize, n: usize, k: usize, a: StridedA<'_>, b: &[f32], ldb: usize, c: &[f32], ldc: usize) {
+    let a_last = (m - 1) * a.rs + (k - 1) * a.cs;
+    let b_last = (k - 1) * ldb + n - 1;
+    let c_last = (m - 1) * ldc + n - 1;
+    assert!(
+        a_last < a.data.len() && b_last < b.len() && c_last < c.len() && n <= ldb && n <= ldc,
+        "gemm {m}×{n}×{k}: operand too short (A {} needs {}, B {} needs {}, C {} needs {})",
+        a.data.len(),
+        a_last + 1,
+        b.len(),
+        b_last + 1,
+        c.len(),
+        c_last + 1
+    );
+}
+
+/// The baseline path (also the reference the tests hold the AVX-512 path to).
+#[allow(clippy::too_many_arguments)]
+pub fn gemm_portable(m: usize, n: usize, k: usize, a: StridedA<'_>, b: &[f32], ldb: usize, c: &mut [f32], ldc: usize) {
+    if m == 0 || n == 0 || k == 0 {
+        return;
+    }
+    check_bounds(m, n, k, a, b, ldb, c, ldc);
+    for i in 0..m {
+        let crow = &mut c[i * ldc..i * ldc + n];
+        for kk in 0..k {
+            let av = a.data[i * a.rs + kk * a.cs];
+            let brow = &b[kk * ldb..kk * ldb + n];
+            for (cv, bv) in crow.iter_mut().zip(brow) {
+                *cv += av * bv;
+            }
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    use super::StridedA;
+    use std::arch::x86_64::*;
+
+    const MR: usize = 8;
+    const NR: usize = 32;
+    const KC: usize = 256;
+
+    #[target_feature(enable = "avx512f")]
+    #[allow(clippy::too_many_arguments)]
+    pub unsafe fn gemm(
+        m: usize,
+        n: usize,
+        k: usize,
+        a: StridedA<'_>,
+        b: &[f32],
+        ldb: usize,
+        c: &mut [f32],
+        ldc: usize,
+    ) {
+        // K is cut into panels of KC so that the B panel a column block sweeps (KC × 32
+        // floats) stays in L1 while every row tile of C reuses it.
+        let mut k0 = 0;
+        while k0 < k {
+            let kc = (k - k0).min(KC);
+            gemm_panel(
+                m,
+                n,
+                kc,
+                a.data.as_ptr().add(k0 * a.cs),
+                a.rs,
+                a.cs,
+                b.as_ptr().add(k0 * ldb),
+                ldb,
+                c.as_mut_ptr(),
+                ldc,
+            );
+            k0 += kc;
+        }
+    }
+
+    #[target_feature(enable = "avx512f")]
+    #[allow(clippy::too_many_arguments)]
+    unsafe fn gemm_panel(
+        m: usize,
+        n: usize,
+        k: usize,
+        ap: *const f32,
+        a_rs: usize,
+        a_cs: usize,
+        bp: *const f32,
+        ldb: usize,
+        cp: *mut f32,
+        ldc: usize,
+    ) {
+        let a = (a_rs, a_cs);
+        let mut j0 = 0;
+        while j0 < n {
+            let nr = (n - j0).min(NR);
+            let m0: __mmask16 = if nr >= 16 { 0xffff } else { ((1u32 << nr) - 1) as u16 };
+            let m1: __mmask16 = if nr >= 32 {
+                0xffff
+            } else if nr > 16 {
+                ((1u32 << (nr - 16)) - 1) as u16
+            } else {
+                0
+            };
+            let mut i0 = 0;
+            while i0 < m {
+                let mr = (m - i0).min(MR);
+                let a_tile = ap.add(i0 * a.0);
+                let b_tile = bp.add(j0);
+                let c_tile = cp.add(i0 * ldc + j0);
+                match mr {
+                    8 => tile::<8>(k, a_tile, a.0, a.1, b_tile, ldb, c_tile, ldc, m0, m1),
+                    7 => tile::<7>(k, a_tile, a.0, a.1, b_tile, ldb, c_tile, ldc, m0, m1),
+                    6 => tile::<6>(k, a_tile, a.0, a.1, b_tile, ldb, c_tile, ldc, m0, m1),
+                    5 => tile::<5>(k, a_tile, a.0, a.1, b_tile, ldb, c_tile, ldc, m0, m1),
+                    4 => tile::<4>(k, a_tile, a.0, a.1, b_tile, ldb, c_tile, ldc, m0, m1),
+                    3 => tile::<3>(k, a_tile, a.0, a.1, b_tile, ldb, c_tile, ldc, m0, m1),
+                    2 => tile::<2>(k, a_tile, a.0, a.1, b_tile, ldb, c_tile, ldc, m0, m1),
+                    _ => tile::<1>(k, a_tile, a.0, a.1, b_tile, ldb, c_tile, ldc, m0, m1),
+                }
+                i0 += MR;
+            }
+            j0 += NR;
+        }
+    }
+
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
+    unsafe fn tile<const R: usize>(
+        k: usize,
+        a: *const f32,
+        a_rs: usize,
+        a_cs: usize,
+        b: *const f32,
+        ldb: usize,
+        c: *mut f32,
+        ldc: usize,
+        m0: __mmask16,
+        m1: __mmask16,
+    ) {
+        let mut acc0 = [_mm512_setzero_ps(); R];
+        let mut acc1 = [_mm512_setzero_ps(); R];
+        if m1 != 0 {
+            for kk in 0..k {
+                let brow = b.add(kk * ldb);
+                let b0 = _mm512_maskz_loadu_ps(m0, brow);
+                let b1 = _mm512_maskz_loadu_ps(m1, brow.add(16));
+                let acol = a.add(kk * a_cs);
+                for r in 0..R {
+                    let av = _mm512_set1_ps(*acol.add(r * a_rs));
+                    acc0[r] = _mm512_fmadd_ps(av, b0, acc0[r]);
+                    acc1[r] = _mm512_fmadd_ps(av, b1, acc1[r]);
+                }
+            }
+        } else {
+            for kk in 0..k {
+                let b0 = _mm512_maskz_loadu_ps(m0, b.add(kk * ldb));
+                let acol = a.add(kk * a_cs);
+                for r in 0..R {
+                    let av = _mm512_set1_ps(*acol.add(r * a_rs));
+                    acc0[r] = _mm512_fmadd_ps(av, b0, acc0[r]);
+                }
+            }
+        }
+        for r in 0..R {
+            let crow = c.add(r * ldc);
+            let c0 = _mm512_maskz_loadu_ps(m0, crow);
+            _mm512_mask_storeu_ps(crow, m0, _mm512_add_ps(c0, acc0[r]));
+            if m1 != 0 {
+                let c1 = _mm512_maskz_loadu_ps(m1, crow.add(16));
+                _mm512_mask_storeu_ps(crow.add(16), m1, _mm512_add_ps(c1, acc1[r]));
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    #[allow(clippy::too_many_arguments)]
+    fn naive(m: usize, n: usize, k: usize, a: StridedA<'_>, b: &[f32], ldb: usize, c: &mut [f32], ldc: usize) {
+        for i in 0..m {
+            for j in 0..n {
+                let mut s = 0.0f64;
+                for kk in 0..k {
+                    s += a.data[i * a.rs + kk * a.cs] as f64 * b[kk * ldb + j] as f64;
+                }
+                c[i * ldc + j] += s as f32;
+            }
+        }
+    }
+
+    #[test]
+    fn matches_naive_on_odd_shapes_and_strides() {
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        for &(m, n, k) in &[
+            (1, 1, 1),
+            (5, 7, 3),
+            (8, 32, 16),
+            (9, 33, 17),
+            (16, 512, 128),
+            (128, 5, 40),
+            (3, 64, 1),
+        ] {
+            for transposed in [false, true] {
+                let a: Vec<f32> = (0..m * k).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let (rs, cs) = if transposed { (1, m) } else { (k, 1) };
+                let ldb = n + 3;
+                let b: Vec<f32> = (0..k * ldb).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let ldc = n + 1;
+                let c0: Vec<f32> = (0..m * ldc).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let av = StridedA { data: &a, rs, cs };
+                let mut want = c0.clone();
+                naive(m, n, k, av, &b, ldb, &mut want, ldc);
+                let mut fast = c0.clone();
+                gemm_acc(m, n, k, av, &b, ldb, &mut fast, ldc);
+                let mut port = c0.clone();
+                gemm_portable(m, n, k, av, &b, ldb, &mut port, ldc);
+                for i in 0..want.len() {
+                    let tol = 1e-5 * (1.0 + k as f32).sqrt() * 4.0;
+                    assert!((fast[i] - want[i]).abs() < tol, "{m}×{n}×{k} fast[{i}]");
+                    assert!((port[i] - want[i]).abs() < tol, "{m}×{n}×{k} portable[{i}]");
+                }
+                // Padding columns of C (j ≥ n) are untouched.
+                for i in 0..m {
+                    assert_eq!(fast[i * ldc + n], c0[i * ldc + n]);
+                }
+            }
+        }
+    }
+}

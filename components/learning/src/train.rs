@@ -1,0 +1,491 @@
+//! Training: Adam, lr 1e-3, batch 32, MSE (paper §IV-C), seeded shuffling, best-epoch
+//! selection on validation RMSE in degrees, optional early stopping.
+//!
+//! Each batch is cut into a fixed number of shards ([`SHARDS`]) whose gradients are summed
+//! in a fixed order, whatever the number of threads: one thread or two give the same bits.
+
+use std::time::Instant;
+
+use indicatif::ProgressBar;
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::adam::Adam;
+use crate::arch::{Arch, Direction, ModelSpec, TcnBlock};
+use crate::candle_ref::CandleModel;
+use crate::kernels::{Net, Prepared, Workspace};
+use crate::onnx::ModelFile;
+use crate::windows::{overall_rmse, WindowSet};
+
+/// Shards per batch (the unit of parallelism and of gradient summation order).
+pub const SHARDS: usize = 2;
+
+/// Which implementation computes the gradients.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Backend {
+    /// Hand-written fused kernels (default).
+    #[default]
+    Fused,
+    /// candle's autograd (reference; slow for the LSTM).
+    Candle,
+}
+
+impl std::str::FromStr for Backend {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "fused" => Ok(Self::Fused),
+            "candle" => Ok(Self::Candle),
+            _ => Err(format!("backend {s:?} is not fused or candle")),
+        }
+    }
+}
+
+/// Everything that defines a training run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrainConfig {
+    pub arch: Arch,
+    pub direction: Direction,
+    pub seq_len: usize,
+    pub tcn_block: TcnBlock,
+    pub epochs: usize,
+    pub seed: u64,
+    /// Stop after this many epochs without a better validation RMSE.
+    pub early_stop: Option<usize>,
+    pub batch_size: usize,
+    pub lr: f64,
+    pub backend: Backend,
+    /// Worker threads (1 or 2 on this machine; results do not depend on it).
+    pub threads: usize,
+}
+
+impl TrainConfig {
+    /// The paper's hyper-parameters for one architecture, direction and length.
+    pub fn paper(arch: Arch, direction: Direction, seq_len: usize, epochs: usize, seed: u64) -> Self {
+        Self {
+            arch,
+            direction,
+            seq_len,
+            tcn_block: TcnBlock::default(),
+            epochs,
+            seed,
+            early_stop: None,
+            batch_size: 32,
+            lr: 1e-3,
+            backend: Backend::Fused,
+            threads: 1,
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error("invalid training configuration: {0}")]
+    Config(String),
+    #[error("the windows have seq_len {windows} and {wj} joints but the config asks for {cfg}")]
+    Mismatch { windows: usize, wj: usize, cfg: usize },
+    #[error("candle: {0}")]
+    Candle(#[from] candle_core::Error),
+    #[error("training diverged at epoch {epoch}: the loss is {loss}")]
+    Diverged { epoch: usize, loss: f64 },
+}
+
+/// One epoch's numbers.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpochStats {
+    /// 1-based.
+    pub epoch: usize,
+    /// Mean squared error on the training windows, normalised units.
+    pub train_loss: f64,
+    /// The same on validation.
+    pub val_loss: f64,
+    /// Validation RMSE over joints and windows, degrees.
+    pub val_rmse_deg: f64,
+    pub val_rmse_per_joint_deg: Vec<f64>,
+    pub seconds: f64,
+}
+
+/// The result of a run: the best model and the curves.
+#[derive(Debug, Clone)]
+pub struct TrainOutcome {
+    pub model: ModelFile,
+    pub epochs: Vec<EpochStats>,
+    /// 1-based epoch of the best validation RMSE.
+    pub best_epoch: usize,
+    pub stopped_early: bool,
+    /// Validation loss (normalised MSE) and RMSE (deg) of the initial, untrained model.
+    pub initial_val_loss: f64,
+    pub initial_val_rmse_deg: f64,
+}
+
+impl TrainOutcome {
+    pub fn best(&self) -> &EpochStats {
+        &self.epochs[self.best_epoch - 1]
+    }
+}
+
+/// Per-shard buffers of the fused engine.
+struct Shard {
+    ws: Workspace,
+    grad: Vec<f32>,
+    x: Vec<f32>,
+    y: Vec<f32>,
+    out: Vec<f32>,
+}
+
+#[allow(clippy::large_enum_variant)] // one per training run
+enum Engine {
+    Fused {
+        net: Net,
+        params: Vec<f32>,
+        prep: Prepared,
+        adam: Adam,
+        shards: Vec<Shard>,
+        threads: usize,
+    },
+    Candle {
+        model: Box<CandleModel>,
+        opt: Box<candle_nn::AdamW>,
+        x: Vec<f32>,
+        y: Vec<f32>,
+    },
+}
+
+fn shard_ranges(n: usize) -> [(usize, usize); SHARDS] {
+    let mut r = [(0, 0); SHARDS];
+    let per = n.div_ceil(SHARDS);
+    for (s, slot) in r.iter_mut().enumerate() {
+        let a = (s * per).min(n);
+        let b = ((s + 1) * per).min(n);
+        *slot = (a, b);
+    }
+    r
+}
+
+impl Engine {
+    fn new(spec: ModelSpec, cfg: &TrainConfig) -> Result<Self, TrainError> {
+        let params = spec.init_params(cfg.seed);
+        Ok(match cfg.backend {
+            Backend::Fused => {
+                let net = Net::new(spec);
+                let prep = net.prepared(&params);
+                let cap = cfg.batch_size.div_ceil(SHARDS);
+                let (l, j) = (spec.seq_len, spec.joints);
+                let shards = (0..SHARDS)
+                    .map(|_| Shard {
+                        ws: net.workspace(cap),
+                        grad: vec![0.0; net.param_count()],
+                        x: vec![0.0; cap * l * j],
+                        y: vec![0.0; cap * j],
+                        out: vec![0.0; cap * j],
+                    })
+                    .collect();
+                Engine::Fused {
+                    adam: Adam::new(net.param_count(), cfg.lr),
+                    net,
+                    params,
+                    prep,
+                    shards,
+                    threads: cfg.threads.clamp(1, SHARDS),
+                }
+            }
+            Backend::Candle => {
+                let model = CandleModel::from_params(spec, &params)?;
+                let opt = model.adam(cfg.lr)?;
+                let (l, j) = (spec.seq_len, spec.joints);
+                Engine::Candle {
+                    model: Box::new(model),
+                    opt: Box::new(opt),
+                    x: vec![0.0; cfg.batch_size * l * j],
+                    y: vec![0.0; cfg.batch_size * j],
+                }
+            }
+        })
+    }
+
+    /// One optimiser step on the windows `ids`; returns Σ (ŷ − y)² (normalised).
+    fn step(&mut self, data: &WindowSet, ids: &[usize]) -> Result<f64, TrainError> {
+        let j = data.joints;
+        match self {
+            Engine::Fused {
+                net,
+                params,
+                prep,
+                adam,
+                shards,
+                threads,
+            } => {
+                let scale = 2.0 / (ids.len() * j) as f32;
+                let ranges = shard_ranges(ids.len());
+                let run = |shard: &mut Shard, (a, b): (usize, usize)| -> f64 {
+                    shard.grad.fill(0.0);
+                    if a == b {
+                        return 0.0;
+                    }
+                    let n = b - a;
+                    data.gather(&ids[a..b], &mut shard.x, &mut shard.y);
+                    net.forward_backward(
+                        params,
+                        prep,
+                        &shard.x,
+                        &shard.y,
+                        n,
+                        scale,
+                        &mut shard.ws,
+                        &mut shard.grad,
+                    )
+                };
+                let sse = if *threads > 1 {
+                    let (first, rest) = shards.split_at_mut(1);
+                    std::thread::scope(|s| {
+                        let h = s.spawn(|| run(&mut rest[0], ranges[1]));
+                        let a = run(&mut first[0], ranges[0]);
+                        // A panic in the worker is a bug in this crate; re-raise it here.
+                        a + h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))
+                    })
+                } else {
+                    let mut t = 0.0;
+                    for (s, r) in shards.iter_mut().zip(ranges) {
+                        t += run(s, r);
+                    }
+                    t
+                };
+                let (first, rest) = shards.split_at_mut(1);
+                let total = &mut first[0].grad;
+                for s in rest.iter() {
+                    for (t, g) in total.iter_mut().zip(&s.grad) {
+                        *t += g;
+                    }
+                }
+                adam.step(params, total);
+                net.prepare(params, prep);
+                Ok(sse)
+            }
+            Engine::Candle { model, opt, x, y } => {
+                data.gather(ids, x, y);
+                let n = ids.len();
+                Ok(model.train_step(opt, &x[..n * data.seq_len * j], &y[..n * j], n)?)
+            }
+        }
+    }
+
+    /// Σ (ŷ − y)² per joint (normalised units) over the windows `ids`.
+    fn evaluate(&mut self, data: &WindowSet, ids: &[usize], chunk: usize) -> Result<Vec<f64>, TrainError> {
+        let j = data.joints;
+        let mut sse = vec![0.0f64; j];
+        match self {
+            Engine::Fused {
+                net,
+                params,
+                prep,
+                shards,
+                threads,
+                ..
+            } => {
+                for batch in ids.chunks(chunk) {
+                    let ranges = shard_ranges(batch.len());
+                    let run = |shard: &mut Shard, (a, b): (usize, usize)| -> Vec<f64> {
+                        let mut e = vec![0.0f64; j];
+                        if a == b {
+                            return e;
+                        }
+                        let n = b - a;
+                        data.gather(&batch[a..b], &mut shard.x, &mut shard.y);
+                        net.forward(params, prep, &shard.x, n, &mut shard.ws, &mut shard.out);
+                        for i in 0..n * j {
+                            let d = (shard.out[i] - shard.y[i]) as f64;
+                            e[i % j] += d * d;
+                        }
+                        e
+                    };
+                    let parts: Vec<Vec<f64>> = if *threads > 1 {
+                        let (first, rest) = shards.split_at_mut(1);
+                        std::thread::scope(|s| {
+                            let h = s.spawn(|| run(&mut rest[0], ranges[1]));
+                            let a = run(&mut first[0], ranges[0]);
+                            vec![a, h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))]
+                        })
+                    } else {
+                        shards.iter_mut().zip(ranges).map(|(s, r)| run(s, r)).collect()
+                    };
+                    for p in parts {
+                        for k in 0..j {
+                            sse[k] += p[k];
+                        }
+                    }
+                }
+            }
+            Engine::Candle { model, x, y, .. } => {
+                for batch in ids.chunks(chunk) {
+                    let n = batch.len();
+                    data.gather(batch, x, y);
+                    let out = model.predict(&x[..n * data.seq_len * j], n)?;
+                    for i in 0..n * j {
+                        let d = (out[i] - y[i]) as f64;
+                        sse[i % j] += d * d;
+                    }
+                }
+            }
+        }
+        Ok(sse)
+    }
+
+    fn params(&self) -> Result<Vec<f32>, TrainError> {
+        match self {
+            Engine::Fused { params, .. } => Ok(params.clone()),
+            Engine::Candle { model, .. } => Ok(model.params()?),
+        }
+    }
+}
+
+/// Trains one model on prepared windows. `progress`, when given, is advanced once per epoch
+/// (its length is set to the number of epochs).
+pub fn train(data: &WindowSet, cfg: &TrainConfig, progress: Option<&ProgressBar>) -> Result<TrainOutcome, TrainError> {
+    if cfg.epochs == 0 {
+        return Err(TrainError::Config("epochs must be at least 1".into()));
+    }
+    if cfg.batch_size == 0 {
+        return Err(TrainError::Config("batch size must be at least 1".into()));
+    }
+    if !(cfg.lr > 0.0 && cfg.lr.is_finite()) {
+        return Err(TrainError::Config(format!("learning rate {} is not positive", cfg.lr)));
+    }
+    if data.seq_len != cfg.seq_len {
+        return Err(TrainError::Mismatch {
+            windows: data.seq_len,
+            wj: data.joints,
+            cfg: cfg.seq_len,
+        });
+    }
+    let spec = ModelSpec::new(cfg.arch, cfg.seq_len, data.joints, cfg.tcn_block);
+    let mut engine = Engine::new(spec, cfg)?;
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5eed_5eed_5eed_5eed);
+    let mut order = data.train.clone();
+    let j = data.joints;
+    let mut epochs = Vec::with_capacity(cfg.epochs);
+    let mut best: Option<(usize, f64, Vec<f32>)> = None;
+    let mut stopped_early = false;
+    if let Some(pb) = progress {
+        pb.set_length(cfg.epochs as u64);
+    }
+    let n_val = data.val.len() as f64;
+    let rmse_deg =
+        |sse: &[f64]| -> Vec<f64> { (0..j).map(|k| (sse[k] / n_val).sqrt() * data.norm_out.sd[k]).collect() };
+    let initial_sse = engine.evaluate(data, &data.val, cfg.batch_size.max(32))?;
+    let initial_val_loss = initial_sse.iter().sum::<f64>() / (n_val * j as f64);
+    let initial_val_rmse_deg = overall_rmse(&rmse_deg(&initial_sse));
+    for epoch in 1..=cfg.epochs {
+        let t0 = Instant::now();
+        order.shuffle(&mut rng);
+        let mut sse = 0.0;
+        for batch in order.chunks(cfg.batch_size) {
+            sse += engine.step(data, batch)?;
+        }
+        let train_loss = sse / (order.len() * j) as f64;
+        if !train_loss.is_finite() {
+            return Err(TrainError::Diverged {
+                epoch,
+                loss: train_loss,
+            });
+        }
+        let val_sse = engine.evaluate(data, &data.val, cfg.batch_size.max(32))?;
+        let per_joint = rmse_deg(&val_sse);
+        let val_rmse = overall_rmse(&per_joint);
+        let stats = EpochStats {
+            epoch,
+            train_loss,
+            val_loss: val_sse.iter().sum::<f64>() / (n_val * j as f64),
+            val_rmse_deg: val_rmse,
+            val_rmse_per_joint_deg: per_joint,
+            seconds: t0.elapsed().as_secs_f64(),
+        };
+        let improved = best.as_ref().is_none_or(|(_, r, _)| val_rmse < *r);
+        if improved {
+            best = Some((epoch, val_rmse, engine.params()?));
+        }
+        if let Some(pb) = progress {
+            let (be, br) = best.as_ref().map_or((0, f64::NAN), |(e, r, _)| (*e, *r));
+            pb.set_message(format!(
+                "train {:.4}  val {:.3}°  best {:.3}° @{}",
+                stats.train_loss, stats.val_rmse_deg, br, be
+            ));
+            pb.inc(1);
+        }
+        epochs.push(stats);
+        if let (Some(patience), Some((be, _, _))) = (cfg.early_stop, best.as_ref()) {
+            if epoch - be >= patience && epoch < cfg.epochs {
+                stopped_early = true;
+                break;
+            }
+        }
+    }
+    let Some((best_epoch, _, params)) = best else {
+        return Err(TrainError::Config("no epoch ran".into()));
+    };
+    Ok(TrainOutcome {
+        model: ModelFile {
+            spec,
+            direction: cfg.direction,
+            params,
+            norm_in: data.norm_in.clone(),
+            norm_out: data.norm_out.clone(),
+        },
+        epochs,
+        best_epoch,
+        stopped_early,
+        initial_val_loss,
+        initial_val_rmse_deg,
+    })
+}
+
+/// One model and its optimiser, stepped batch by batch (benchmarks).
+pub struct Stepper {
+    engine: Engine,
+}
+
+impl Stepper {
+    pub fn new(joints: usize, cfg: &TrainConfig) -> Result<Self, TrainError> {
+        let spec = ModelSpec::new(cfg.arch, cfg.seq_len, joints, cfg.tcn_block);
+        Ok(Self {
+            engine: Engine::new(spec, cfg)?,
+        })
+    }
+
+    /// One forward / backward / Adam step on the windows `ids`; returns Σ (ŷ − y)².
+    pub fn step(&mut self, data: &WindowSet, ids: &[usize]) -> Result<f64, TrainError> {
+        self.engine.step(data, ids)
+    }
+}
+
+/// CPU time used by this process so far (all threads), seconds.
+pub fn process_cpu_seconds() -> f64 {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: `ts` is a valid timespec to write into; the clock id is a constant.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
+    if rc != 0 {
+        return f64::NAN;
+    }
+    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
+}
+
+/// Wall-clock and process-CPU seconds of one training epoch over `data.train` (no
+/// validation), after `warmup` batches: the numbers `bowden bench train` reports.
+pub fn time_epoch(data: &WindowSet, cfg: &TrainConfig, warmup: usize) -> Result<(f64, f64), TrainError> {
+    let spec = ModelSpec::new(cfg.arch, cfg.seq_len, data.joints, cfg.tcn_block);
+    let mut engine = Engine::new(spec, cfg)?;
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
+    let mut order = data.train.clone();
+    order.shuffle(&mut rng);
+    for batch in order.chunks(cfg.batch_size).take(warmup) {
+        engine.step(data, batch)?;
+    }
+    let c0 = process_cpu_seconds();
+    let t0 = Instant::now();
+    for batch in order.chunks(cfg.batch_size) {
+        engine.step(data, batch)?;
+    }
+    Ok((t0.elapsed().as_secs_f64(), process_cpu_seconds() - c0))
+}

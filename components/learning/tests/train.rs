@@ -1,0 +1,185 @@
+//! Training: paper parameter counts and block counts, the split, learning, determinism,
+//! and the candle backend agreeing with the fused one.
+
+use bowden_learning::arch::{tcn_num_blocks, Arch, Direction, ModelSpec, TcnBlock};
+use bowden_learning::synthetic::hysteretic_dataset;
+use bowden_learning::train::{train, Backend, TrainConfig};
+use bowden_learning::windows::{PhySource, SplitConfig, WindowSet};
+
+#[test]
+fn paper_parameter_counts_at_l80_j5() {
+    let count = |a| ModelSpec::new(a, 80, 5, TcnBlock::ReluLinear).param_count();
+    assert_eq!(count(Arch::Tcn), 800);
+    assert_eq!(count(Arch::Lstm), 77_701);
+    assert_eq!(count(Arch::TcnLstm), 78_501);
+    // FNN 5L → 128 → 128 → 5 (the fixture README's 68,485).
+    assert_eq!(count(Arch::Fnn), 68_485);
+    // Both block variants have the same parameters.
+    assert_eq!(ModelSpec::new(Arch::Tcn, 80, 5, TcnBlock::ReluRelu).param_count(), 800);
+}
+
+#[test]
+fn eq20_block_counts_for_the_paper_lengths() {
+    let blocks: Vec<usize> = [10, 50, 65, 80, 100, 120].into_iter().map(tcn_num_blocks).collect();
+    assert_eq!(blocks, vec![2, 4, 5, 5, 5, 5]);
+    assert_eq!(
+        ModelSpec::new(Arch::Tcn, 50, 5, TcnBlock::ReluLinear).param_count(),
+        4 * 160
+    );
+}
+
+#[test]
+fn split_shares_no_sample_between_train_and_validation() {
+    let ds = hysteretic_dataset(3000, 5, 1);
+    for (l, blocks) in [(10, 1), (80, 1), (80, 4), (120, 3)] {
+        let split = SplitConfig {
+            val_fraction: 0.2,
+            val_blocks: blocks,
+        };
+        let w = WindowSet::build(&ds, Direction::Forward, l, split, PhySource::Vision).unwrap();
+        let mut owner = vec![0u8; ds.len()]; // 1 = train, 2 = val
+        for (ids, tag) in [(&w.train, 1u8), (&w.val, 2u8)] {
+            for &t in ids {
+                let (a, b) = w.span(t);
+                for (s, o) in owner.iter_mut().enumerate().take(b + 1).skip(a) {
+                    assert!(*o == 0 || *o == tag, "L={l} blocks={blocks}: sample {s} in both splits");
+                    *o = tag;
+                }
+            }
+        }
+        // Every window is somewhere: train, validation, or purged (it straddles a boundary;
+        // at most L − 1 per boundary).
+        assert_eq!(w.train.len() + w.val.len() + w.purged, ds.len());
+        assert!(w.purged <= (2 * blocks) * (l - 1));
+        let val_samples = 0.2 * ds.len() as f64;
+        let n_val = w.val.len() as f64;
+        assert!(
+            n_val <= val_samples + blocks as f64,
+            "L={l}: {n_val} validation windows"
+        );
+        assert!(
+            n_val >= val_samples - (blocks * l) as f64,
+            "L={l}: {n_val} validation windows"
+        );
+    }
+}
+
+#[test]
+fn windows_pad_with_zero_degrees_and_normalise_inside() {
+    let ds = hysteretic_dataset(400, 3, 2);
+    let w = WindowSet::build(&ds, Direction::Inverse, 10, SplitConfig::default(), PhySource::Truth).unwrap();
+    // Window of target 2: 7 rows of padding (0°), then samples 0, 1, 2.
+    let raw = w.window_deg(2);
+    assert!(raw[..7 * 3].iter().all(|&v| v == 0.0));
+    let q_true = ds.q_true_deg.as_ref().unwrap();
+    assert_eq!(&raw[7 * 3..], &q_true[..9]);
+    let norm = w.window(2);
+    for k in 0..3 {
+        assert_eq!(norm[k], w.norm_in.apply(k, 0.0));
+        assert_eq!(norm[7 * 3 + k], w.norm_in.apply(k, q_true[k]));
+    }
+    // Inverse: the target is the command.
+    assert_eq!(w.target(5)[1], w.norm_out.apply(1, ds.q_cmd_deg[5 * 3 + 1]));
+}
+
+fn small_config(arch: Arch, epochs: usize) -> TrainConfig {
+    let mut cfg = TrainConfig::paper(arch, Direction::Forward, 16, epochs, 7);
+    cfg.threads = 2;
+    cfg
+}
+
+#[test]
+fn short_training_lowers_validation_loss() {
+    let ds = hysteretic_dataset(2500, 5, 3);
+    let w = WindowSet::build(&ds, Direction::Forward, 16, SplitConfig::default(), PhySource::Vision).unwrap();
+    for arch in [Arch::Tcn, Arch::Fnn] {
+        let out = train(&w, &small_config(arch, 6), None).unwrap();
+        let first = &out.epochs[0];
+        let best = out.best();
+        assert!(
+            best.val_loss < 0.3 * out.initial_val_loss && best.val_loss < first.val_loss,
+            "{arch}: validation loss {} (untrained) → {} (epoch 1) → {} (best)",
+            out.initial_val_loss,
+            first.val_loss,
+            best.val_loss
+        );
+        assert!(out.epochs.last().unwrap().train_loss < first.train_loss);
+        // Better than the raw hysteresis (the identity model q_phy = q_cmd).
+        let identity = bowden_learning::windows::overall_rmse(&w.identity_rmse_deg(&w.val));
+        assert!(
+            best.val_rmse_deg < identity,
+            "{arch}: {} ≥ identity {identity}",
+            best.val_rmse_deg
+        );
+    }
+}
+
+#[test]
+fn lstm_learns_too() {
+    let ds = hysteretic_dataset(1200, 5, 4);
+    let w = WindowSet::build(&ds, Direction::Forward, 8, SplitConfig::default(), PhySource::Vision).unwrap();
+    let mut cfg = TrainConfig::paper(Arch::Lstm, Direction::Forward, 8, 4, 1);
+    cfg.threads = 2;
+    let out = train(&w, &cfg, None).unwrap();
+    assert!(
+        out.best().val_loss < 0.5 * out.initial_val_loss,
+        "{} → {:?}",
+        out.initial_val_loss,
+        out.epochs
+    );
+}
+
+#[test]
+fn same_seed_same_bits_whatever_the_thread_count() {
+    let ds = hysteretic_dataset(1500, 5, 5);
+    let w = WindowSet::build(&ds, Direction::Inverse, 12, SplitConfig::default(), PhySource::Vision).unwrap();
+    let mut cfg = TrainConfig::paper(Arch::TcnLstm, Direction::Inverse, 12, 2, 9);
+    cfg.threads = 1;
+    let a = train(&w, &cfg, None).unwrap();
+    cfg.threads = 2;
+    let b = train(&w, &cfg, None).unwrap();
+    assert_eq!(a.model.params, b.model.params);
+    assert_eq!(a.epochs[1].val_loss, b.epochs[1].val_loss);
+    cfg.seed = 10;
+    let c = train(&w, &cfg, None).unwrap();
+    assert_ne!(a.model.params, c.model.params);
+}
+
+#[test]
+fn early_stopping_stops() {
+    let ds = hysteretic_dataset(800, 5, 6);
+    let w = WindowSet::build(&ds, Direction::Forward, 10, SplitConfig::default(), PhySource::Vision).unwrap();
+    let mut cfg = small_config(Arch::Tcn, 200);
+    cfg.seq_len = 10;
+    cfg.lr = 0.05; // large enough to stall quickly
+    cfg.early_stop = Some(3);
+    let out = train(&w, &cfg, None).unwrap();
+    assert!(out.stopped_early && out.epochs.len() < 200);
+    assert_eq!(out.epochs.len(), out.best_epoch + 3);
+}
+
+#[test]
+fn candle_backend_follows_the_same_trajectory() {
+    // Same init, same batches: after a few Adam steps the two backends agree closely.
+    let ds = hysteretic_dataset(300, 5, 8);
+    for arch in [Arch::Tcn, Arch::Lstm] {
+        let l = 6;
+        let w = WindowSet::build(&ds, Direction::Forward, l, SplitConfig::default(), PhySource::Vision).unwrap();
+        let mut cfg = TrainConfig::paper(arch, Direction::Forward, l, 1, 3);
+        cfg.batch_size = 64;
+        let fused = train(&w, &cfg, None).unwrap();
+        cfg.backend = Backend::Candle;
+        let candle = train(&w, &cfg, None).unwrap();
+        let worst = fused
+            .model
+            .params
+            .iter()
+            .zip(&candle.model.params)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        // 4 Adam steps of lr 1e-3 move a weight by ≤ 4e-3; the backends agree far closer.
+        assert!(worst < 2e-4, "{arch}: fused and candle parameters differ by {worst}");
+        let (vf, vc) = (fused.epochs[0].val_rmse_deg, candle.epochs[0].val_rmse_deg);
+        assert!((vf - vc).abs() < 1e-3 * vf, "{arch}: val RMSE {vf} vs {vc}");
+    }
+}

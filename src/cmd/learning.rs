@@ -1,0 +1,395 @@
+//! `bowden train`, `bowden sweep`, `bowden import` and `bowden bench train`: thin wrappers
+//! over `bowden-learning`.
+
+use anyhow::{bail, Context, Result};
+use bowden_learning::bench::{bench_train, BenchOptions};
+use bowden_learning::dataset::{import_csv, import_npy, AngleUnit, ImportOptions};
+use bowden_learning::report::train_to_files;
+use bowden_learning::sweep::{run_sweep, SweepConfig};
+use bowden_learning::{Arch, Backend, Direction, PhySource, SplitConfig, TcnBlock, TrainConfig};
+use clap::{Args, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::PathBuf;
+
+#[derive(Subcommand)]
+pub enum Command {
+    /// Train one model (paper §IV-C: Adam 1e-3, batch 32, MSE, 80/20 contiguous split, best
+    /// epoch on validation RMSE) and export it as ONNX with a JSON report and a loss plot.
+    Train(TrainArgs),
+    /// The paper's Fig. 10 study: every (architecture, L, direction) over several seeds, in
+    /// parallel, resumable; mean ± SD of the best validation RMSE as Markdown, JSON and SVG.
+    Sweep(SweepArgs),
+    /// Import an external log (CSV with named columns, or a pair of .npy arrays) as a
+    /// bowden dataset directory.
+    Import(ImportArgs),
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct SplitArgs {
+    /// Fraction of samples in validation.
+    #[arg(long, default_value_t = 0.2)]
+    val_fraction: f64,
+    /// Contiguous validation blocks (1 = the last 20 % of the sequence).
+    #[arg(long, default_value_t = 1)]
+    val_blocks: usize,
+    /// Physical angles from the vision estimate (as the paper) or the simulator's truth.
+    #[arg(long, default_value = "vision")]
+    phy_source: String,
+}
+
+impl SplitArgs {
+    fn parse(&self) -> Result<(SplitConfig, PhySource)> {
+        let phy: PhySource = self.phy_source.parse().map_err(anyhow::Error::msg)?;
+        Ok((
+            SplitConfig {
+                val_fraction: self.val_fraction,
+                val_blocks: self.val_blocks,
+            },
+            phy,
+        ))
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct TrainArgs {
+    /// fnn | lstm | tcn | tcn-lstm
+    #[arg(long)]
+    arch: String,
+    /// forward (q_cmd history → q_phy) | inverse (q_phy history → q_cmd)
+    #[arg(long)]
+    direction: String,
+    /// Input sequence length L.
+    #[arg(long, default_value_t = 80)]
+    seq_len: usize,
+    #[arg(long, default_value_t = 100)]
+    epochs: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Dataset directory (dataset.csv + manifest.json).
+    #[arg(long)]
+    data: PathBuf,
+    /// Output model; NAME.report.json and NAME.loss.svg are written beside it.
+    #[arg(long)]
+    out: PathBuf,
+    /// relu-linear (ReLU between the convs only; default) | relu-relu (the paper literally).
+    #[arg(long, default_value = "relu-linear")]
+    tcn_block: String,
+    /// Stop after N epochs without a better validation RMSE.
+    #[arg(long)]
+    early_stop: Option<usize>,
+    #[arg(long, default_value_t = 32)]
+    batch_size: usize,
+    #[arg(long, default_value_t = 1e-3)]
+    lr: f64,
+    /// fused (hand-written kernels) | candle (autograd reference, slow)
+    #[arg(long, default_value = "fused")]
+    backend: String,
+    /// Worker threads (results do not depend on it).
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+    #[command(flatten)]
+    split: SplitArgs,
+}
+
+#[derive(Args, Debug)]
+pub struct SweepArgs {
+    /// Comma-separated architectures.
+    #[arg(long, default_value = "fnn,lstm,tcn,tcn-lstm")]
+    archs: String,
+    /// Comma-separated sequence lengths.
+    #[arg(long, default_value = "10,50,65,80,100,120")]
+    seq_lens: String,
+    /// Seeds per configuration (0, 1, ... N−1).
+    #[arg(long, default_value_t = 3)]
+    seeds: u64,
+    #[arg(long, default_value = "forward,inverse")]
+    directions: String,
+    /// TCN block variants for tcn and tcn-lstm (comma-separated).
+    #[arg(long, default_value = "relu-linear,relu-relu")]
+    tcn_blocks: String,
+    #[arg(long, default_value_t = 30)]
+    epochs: usize,
+    #[arg(long)]
+    early_stop: Option<usize>,
+    #[arg(long)]
+    data: PathBuf,
+    /// Output directory (runs/ holds one JSON per finished run: rerunning resumes).
+    #[arg(long)]
+    out: PathBuf,
+    /// Configurations trained at once (one per thread).
+    #[arg(long)]
+    jobs: Option<usize>,
+    #[command(flatten)]
+    split: SplitArgs,
+}
+
+#[derive(Args, Debug)]
+pub struct ImportArgs {
+    /// CSV log with a header.
+    #[arg(long, conflicts_with_all = ["npy_cmd", "npy_phy"])]
+    csv: Option<PathBuf>,
+    /// Command array (N × J .npy).
+    #[arg(long, requires = "npy_phy")]
+    npy_cmd: Option<PathBuf>,
+    /// Measured array (N × J .npy).
+    #[arg(long, requires = "npy_cmd")]
+    npy_phy: Option<PathBuf>,
+    /// Output dataset directory.
+    #[arg(long)]
+    out: PathBuf,
+    /// deg | rad (converted to degrees).
+    #[arg(long, default_value = "deg")]
+    unit: String,
+    /// 1-based joints to keep, e.g. 1,2,3.
+    #[arg(long)]
+    joints: Option<String>,
+    /// CSV command columns (default: q_cmd_1, q_cmd_2, ...).
+    #[arg(long)]
+    cmd_cols: Option<String>,
+    /// CSV measured columns (default: q_phy_1, q_phy_2, ...).
+    #[arg(long)]
+    phy_cols: Option<String>,
+    /// CSV timestamp column, ns (default t_ns if present).
+    #[arg(long)]
+    time_col: Option<String>,
+    /// CSV validity column (default valid if present).
+    #[arg(long)]
+    valid_col: Option<String>,
+    /// Sample period when the data has no timestamps, ns.
+    #[arg(long, default_value_t = 500_000_000)]
+    period_ns: i64,
+}
+
+#[derive(Subcommand)]
+pub enum BenchCommand {
+    /// Seconds per training epoch: 24,565 windows of L = 80, batch 32, J = 5 (synthetic
+    /// data), against PyTorch 2.15 with 2 threads on this CPU (3.65 s TCN, 6.4 s LSTM).
+    Train(BenchTrainArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct BenchTrainArgs {
+    /// tcn | lstm | fnn | tcn-lstm; default: tcn and lstm.
+    #[arg(long)]
+    arch: Option<String>,
+    #[arg(long, default_value_t = 3)]
+    epochs: usize,
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+    /// fused | candle
+    #[arg(long, default_value = "fused")]
+    backend: String,
+    /// Windows per epoch (default: the paper's 24,565).
+    #[arg(long, default_value_t = bowden_learning::bench::PAPER_TRAIN_WINDOWS)]
+    windows: usize,
+    #[arg(long, default_value_t = 80)]
+    seq_len: usize,
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+fn parse_list<T: std::str::FromStr<Err = String>>(s: &str, what: &str) -> Result<Vec<T>> {
+    s.split(',')
+        .map(|p| p.trim())
+        .filter(|p| !p.is_empty())
+        .map(|p| p.parse::<T>().map_err(anyhow::Error::msg))
+        .collect::<Result<Vec<T>>>()
+        .with_context(|| format!("--{what} {s:?}"))
+}
+
+fn parse_usizes(s: &str, what: &str) -> Result<Vec<usize>> {
+    s.split(',')
+        .map(|p| p.trim())
+        .filter(|p| !p.is_empty())
+        .map(|p| {
+            p.parse::<usize>()
+                .with_context(|| format!("--{what}: {p:?} is not a positive integer"))
+        })
+        .collect()
+}
+
+fn epoch_bar() -> ProgressBar {
+    let pb = ProgressBar::new(0);
+    pb.set_style(
+        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} epochs {elapsed_precise} ETA {eta} {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    pb
+}
+
+pub fn run(c: Command) -> Result<()> {
+    match c {
+        Command::Train(a) => {
+            let arch: Arch = a.arch.parse().map_err(anyhow::Error::msg).context("--arch")?;
+            let direction: Direction = a.direction.parse().map_err(anyhow::Error::msg).context("--direction")?;
+            let mut cfg = TrainConfig::paper(arch, direction, a.seq_len, a.epochs, a.seed);
+            cfg.tcn_block = a
+                .tcn_block
+                .parse::<TcnBlock>()
+                .map_err(anyhow::Error::msg)
+                .context("--tcn-block")?;
+            cfg.early_stop = a.early_stop;
+            cfg.batch_size = a.batch_size;
+            cfg.lr = a.lr;
+            cfg.backend = a
+                .backend
+                .parse::<Backend>()
+                .map_err(anyhow::Error::msg)
+                .context("--backend")?;
+            cfg.threads = a.threads;
+            let (split, phy) = a.split.parse()?;
+            let pb = epoch_bar();
+            pb.set_prefix(format!("{arch} {direction} L={}", a.seq_len));
+            let report = train_to_files(&a.data, &cfg, split, phy, &a.out, Some(&pb))
+                .with_context(|| format!("training on {}", a.data.display()))?;
+            pb.finish();
+            let (json, svg) = bowden_learning::report::sidecar_paths(&a.out);
+            println!(
+                "{} {} L={} ({} params): best epoch {}/{}: validation RMSE {:.3}° (identity {:.3}°), per joint {:?}",
+                arch,
+                direction,
+                a.seq_len,
+                report.params,
+                report.best_epoch,
+                report.epochs_run,
+                report.best_val_rmse_deg,
+                report.identity_val_rmse_deg,
+                report
+                    .best_val_rmse_per_joint_deg
+                    .iter()
+                    .map(|v| (v * 1000.0).round() / 1000.0)
+                    .collect::<Vec<_>>()
+            );
+            if let Some(x) = &report.export {
+                println!(
+                    "wrote {} (tract check: max |Δ| {:.2e}° over {} windows), {}, {}; {:.2} s/epoch",
+                    a.out.display(),
+                    x.max_abs_diff_deg,
+                    x.windows_checked,
+                    json.display(),
+                    svg.display(),
+                    report.mean_epoch_seconds
+                );
+            }
+            Ok(())
+        }
+        Command::Sweep(a) => {
+            let (split, phy) = a.split.parse()?;
+            let cfg = SweepConfig {
+                archs: parse_list(&a.archs, "archs")?,
+                seq_lens: parse_usizes(&a.seq_lens, "seq-lens")?,
+                seeds: a.seeds,
+                directions: parse_list(&a.directions, "directions")?,
+                tcn_blocks: parse_list(&a.tcn_blocks, "tcn-blocks")?,
+                epochs: a.epochs,
+                early_stop: a.early_stop,
+                split,
+                phy_source: phy,
+                jobs: a
+                    .jobs
+                    .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
+            };
+            let summary =
+                run_sweep(&a.data, &a.out, &cfg, true).with_context(|| format!("sweep into {}", a.out.display()))?;
+            println!("{}", summary.markdown);
+            println!(
+                "wrote {0}/sweep.md, {0}/sweep.json, {0}/sweep.svg ({1} runs, {2} reused from an earlier sweep)",
+                a.out.display(),
+                summary.runs,
+                summary.reused
+            );
+            Ok(())
+        }
+        Command::Import(a) => {
+            let unit: AngleUnit = a.unit.parse().map_err(anyhow::Error::msg).context("--unit")?;
+            let opts = ImportOptions {
+                unit,
+                joints: a.joints.as_deref().map(|s| parse_usizes(s, "joints")).transpose()?,
+                cmd_columns: a.cmd_cols.as_deref().map(split_names),
+                phy_columns: a.phy_cols.as_deref().map(split_names),
+                time_column: a.time_col.clone(),
+                valid_column: a.valid_col.clone(),
+                period_ns: a.period_ns,
+            };
+            let (ds, source, files) = match (&a.csv, &a.npy_cmd, &a.npy_phy) {
+                (Some(csv), None, None) => (import_csv(csv, &opts)?, "import-csv", vec![csv.clone()]),
+                (None, Some(c), Some(p)) => (import_npy(c, p, &opts)?, "import-npy", vec![c.clone(), p.clone()]),
+                _ => bail!("give either --csv FILE or both --npy-cmd and --npy-phy"),
+            };
+            let provenance = serde_json::json!({
+                "files": files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>(),
+                "options": opts,
+            });
+            let manifest = ds
+                .write_dir(&a.out, source, None, None, provenance)
+                .with_context(|| format!("writing {}", a.out.display()))?;
+            println!(
+                "wrote {}: {} samples ({} valid), {} joints",
+                a.out.display(),
+                manifest.samples,
+                manifest.valid_samples,
+                manifest.joints
+            );
+            Ok(())
+        }
+    }
+}
+
+fn split_names(s: &str) -> Vec<String> {
+    s.split(',')
+        .map(|p| p.trim().to_string())
+        .filter(|p| !p.is_empty())
+        .collect()
+}
+
+pub fn bench(c: BenchCommand) -> Result<()> {
+    match c {
+        BenchCommand::Train(a) => {
+            let archs: Vec<Arch> = match &a.arch {
+                Some(s) => parse_list(s, "arch")?,
+                None => vec![Arch::Tcn, Arch::Lstm],
+            };
+            let backend: Backend = a.backend.parse().map_err(anyhow::Error::msg).context("--backend")?;
+            let mut results = Vec::new();
+            for arch in archs {
+                let mut o = BenchOptions::paper(arch);
+                o.epochs = a.epochs;
+                o.threads = a.threads;
+                o.backend = backend;
+                o.windows = a.windows;
+                o.seq_len = a.seq_len;
+                let r = bench_train(&o).with_context(|| format!("bench train --arch {arch}"))?;
+                if !a.json {
+                    let round = |v: &[f64]| v.iter().map(|s| (s * 1000.0).round() / 1000.0).collect::<Vec<_>>();
+                    println!(
+                        "{:8} {:6} L={} {} windows, batch {}, {} thread(s), {}: {:.3} s/epoch median, {:.3} min, \
+                         wall {:?} s, CPU {:?} s, load avg {}{}",
+                        arch.name(),
+                        format!("{backend:?}").to_lowercase(),
+                        o.seq_len,
+                        o.windows,
+                        o.batch_size,
+                        o.threads,
+                        r.simd,
+                        r.median_seconds,
+                        r.min_seconds,
+                        round(&r.epoch_seconds),
+                        round(&r.epoch_cpu_seconds),
+                        r.load_average_1min.map_or("?".into(), |l| format!("{l:.2}")),
+                        match (r.pytorch_seconds, r.speedup_vs_pytorch) {
+                            (Some(p), Some(s)) => format!("; PyTorch (2 threads) {p} s/epoch → {s:.2}× its speed"),
+                            _ => String::new(),
+                        }
+                    );
+                }
+                results.push(r);
+            }
+            if a.json {
+                println!("{}", serde_json::to_string_pretty(&results)?);
+            }
+            Ok(())
+        }
+    }
+}

@@ -1,0 +1,226 @@
+//! `bowden import`, `bowden train`, `bowden sweep` from the command line: files written,
+//! reports consistent, errors named, sweeps resumable.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use bowden_learning::npy::write_npy_f64;
+use bowden_learning::synthetic::hysteretic_dataset;
+
+fn bowden(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_bowden"))
+        .args(args)
+        .output()
+        .expect("run bowden")
+}
+
+fn ok(out: &Output) -> String {
+    assert!(
+        out.status.success(),
+        "bowden failed: {}\n{}",
+        String::from_utf8_lossy(&out.stderr),
+        String::from_utf8_lossy(&out.stdout)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn fails_with(out: &Output, needles: &[&str]) {
+    assert!(!out.status.success(), "expected a failure");
+    let err = String::from_utf8_lossy(&out.stderr);
+    for n in needles {
+        assert!(err.contains(n), "stderr {err:?} does not mention {n:?}");
+    }
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+fn synthetic_dir(dir: &Path, n: usize) -> String {
+    hysteretic_dataset(n, 5, 11)
+        .write_dir(dir, "synthetic", Some(11), None, serde_json::Value::Null)
+        .unwrap();
+    dir.display().to_string()
+}
+
+#[test]
+fn import_csv_and_npy_with_clear_errors() {
+    let tmp = tempfile::tempdir().unwrap();
+    let csv = tmp.path().join("log.csv");
+    std::fs::write(&csv, "t,c1,c2,m1,m2\n0,1,2,1.1,2.1\n5,2,3,2.1,3.2\n").unwrap();
+    let out_dir = tmp.path().join("ds");
+    let (csv_s, out_s) = (csv.display().to_string(), out_dir.display().to_string());
+    let stdout = ok(&bowden(&[
+        "import",
+        "--csv",
+        &csv_s,
+        "--cmd-cols",
+        "c1,c2",
+        "--phy-cols",
+        "m1,m2",
+        "--time-col",
+        "t",
+        "--out",
+        &out_s,
+    ]));
+    assert!(stdout.contains("2 samples (2 valid), 2 joints"), "{stdout}");
+    assert!(out_dir.join("manifest.json").exists() && out_dir.join("dataset.csv").exists());
+
+    fails_with(
+        &bowden(&[
+            "import",
+            "--csv",
+            &csv_s,
+            "--cmd-cols",
+            "c1,nope",
+            "--phy-cols",
+            "m1,m2",
+            "--out",
+            &out_s,
+        ]),
+        &["log.csv", "nope"],
+    );
+
+    let (c, p) = (tmp.path().join("cmd.npy"), tmp.path().join("phy.npy"));
+    write_npy_f64(&c, 3, 5, &[0.0; 15]).unwrap();
+    write_npy_f64(&p, 3, 4, &[0.0; 12]).unwrap();
+    let (c_s, p_s) = (c.display().to_string(), p.display().to_string());
+    fails_with(
+        &bowden(&["import", "--npy-cmd", &c_s, "--npy-phy", &p_s, "--out", &out_s]),
+        &["phy.npy", "(3, 4)"],
+    );
+    write_npy_f64(&p, 3, 5, &[0.1; 15]).unwrap();
+    let stdout = ok(&bowden(&[
+        "import",
+        "--npy-cmd",
+        &c_s,
+        "--npy-phy",
+        &p_s,
+        "--unit",
+        "rad",
+        "--joints",
+        "1,3",
+        "--out",
+        &out_s,
+    ]));
+    assert!(stdout.contains("3 samples (3 valid), 2 joints"), "{stdout}");
+}
+
+#[test]
+fn train_writes_model_report_and_plot() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = synthetic_dir(&tmp.path().join("data"), 1500);
+    let model = tmp.path().join("models/tcn_forward.onnx");
+    let model_s = model.display().to_string();
+    let stdout = ok(&bowden(&[
+        "train",
+        "--arch",
+        "tcn",
+        "--direction",
+        "forward",
+        "--seq-len",
+        "16",
+        "--epochs",
+        "3",
+        "--seed",
+        "1",
+        "--data",
+        &data,
+        "--out",
+        &model_s,
+    ]));
+    assert!(stdout.contains("validation RMSE"), "{stdout}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(tmp.path().join("models/tcn_forward.report.json")).unwrap())
+            .unwrap();
+    // L = 16: eq. (20) gives 3 blocks of two 5→5 convolutions (k = 3): 3 × 2 × 80.
+    assert_eq!(report["params"], 480);
+    assert_eq!(report["tcn_blocks"], 3);
+    let best = report["best_val_rmse_deg"].as_f64().unwrap();
+    let identity = report["identity_val_rmse_deg"].as_f64().unwrap();
+    assert!(best < identity, "model {best} vs identity {identity}");
+    assert!(report["export"]["max_abs_diff_deg"].as_f64().unwrap() <= 1e-4);
+    assert_eq!(report["epochs"].as_array().unwrap().len(), 3);
+    let svg = std::fs::read_to_string(tmp.path().join("models/tcn_forward.loss.svg")).unwrap();
+    assert!(svg.starts_with("<svg") && svg.contains("validation"));
+    let meta = bowden_learning::onnx::read_metadata(&model).unwrap();
+    let get = |k: &str| meta.iter().find(|(mk, _)| mk == k).map(|(_, v)| v.as_str());
+    assert_eq!(get("direction"), Some("forward"));
+    assert_eq!(get("seq_len"), Some("16"));
+    assert_eq!(get("tcn_block"), Some("relu-linear"));
+
+    fails_with(
+        &bowden(&[
+            "train",
+            "--arch",
+            "gru",
+            "--direction",
+            "forward",
+            "--data",
+            &data,
+            "--out",
+            &model_s,
+        ]),
+        &["--arch", "gru"],
+    );
+    let missing = tmp.path().join("nothing").display().to_string();
+    fails_with(
+        &bowden(&[
+            "train",
+            "--arch",
+            "tcn",
+            "--direction",
+            "forward",
+            "--data",
+            &missing,
+            "--out",
+            &model_s,
+        ]),
+        &["nothing", "manifest.json"],
+    );
+}
+
+#[test]
+fn sweep_summarises_and_resumes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = synthetic_dir(&tmp.path().join("data"), 900);
+    let out = tmp.path().join("sweep").display().to_string();
+    let args = [
+        "sweep",
+        "--archs",
+        "tcn,fnn",
+        "--seq-lens",
+        "8,12",
+        "--seeds",
+        "2",
+        "--directions",
+        "forward,inverse",
+        "--tcn-blocks",
+        "relu-linear",
+        "--epochs",
+        "2",
+        "--data",
+        &data,
+        "--out",
+        &out,
+        "--jobs",
+        "2",
+    ];
+    let first = ok(&bowden(&args));
+    assert!(first.contains("16 runs, 0 reused"), "{first}");
+    let md = std::fs::read_to_string(tmp.path().join("sweep/sweep.md")).unwrap();
+    assert!(
+        md.contains("## forward") && md.contains("## inverse") && md.contains("tcn (relu-linear)"),
+        "{md}"
+    );
+    assert!(md.contains("| identity |"), "{md}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(tmp.path().join("sweep/sweep.json")).unwrap()).unwrap();
+    let groups = summary["groups"].as_array().unwrap();
+    assert_eq!(groups.len(), 8); // 2 models × 2 L × 2 directions
+    assert!(groups.iter().all(|g| g["n"] == 2));
+    assert!(std::fs::read_to_string(tmp.path().join("sweep/sweep.svg"))
+        .unwrap()
+        .starts_with("<svg"));
+    // Rerun: nothing is trained again, the same table comes out.
+    let second = ok(&bowden(&args));
+    assert!(second.contains("16 runs, 16 reused"), "{second}");
+    assert_eq!(md, std::fs::read_to_string(tmp.path().join("sweep/sweep.md")).unwrap());
+}
