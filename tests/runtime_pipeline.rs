@@ -122,7 +122,9 @@ fn replay_republishes_the_recorded_samples() {
         .collect();
     assert_eq!(recorded.len(), 300);
 
-    // Listen on a fresh prefix, replay the commands onto it at 10x the recorded pace.
+    // Listen on a fresh prefix, replay the commands onto it at the recorded pace (1 ms apart):
+    // the service's queue holds 64 samples, so the listener may be descheduled for 64 ms on a
+    // loaded machine without losing one (at 10x it lost some under CI-like load).
     let (q, _guard_q) = guarded_prefix("rep");
     let received = {
         let ctx = PortContext::new("listener", &settings(&q)).unwrap();
@@ -136,7 +138,7 @@ fn replay_republishes_the_recorded_samples() {
                 "--services",
                 services::JOINT_COMMAND,
                 "--speed",
-                "10",
+                "1",
             ])
             .stdout(std::process::Stdio::piped())
             .spawn()
