@@ -46,7 +46,10 @@ fn short_evaluation_calibrated_beats_uncalibrated() {
     for by in ["task_truth", "task_vision"] {
         let u = pos("uncalibrated", by);
         let best = pos("paper", by).min(pos("newton", by));
-        assert!(best < 0.8 * u, "{by}: best calibrated {best:.2} mm vs uncalibrated {u:.2} mm");
+        assert!(
+            best < 0.8 * u,
+            "{by}: best calibrated {best:.2} mm vs uncalibrated {u:.2} mm"
+        );
     }
     // Repeats differ (their own seeds) but the same seed gives the same run: checked by the
     // runtime's determinism tests; here the two repeats must not be byte-identical.
