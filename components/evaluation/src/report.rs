@@ -250,7 +250,7 @@ pub fn markdown(s: &Summary, header: &str) -> String {
     out
 }
 
-fn plot_err(e: impl std::fmt::Display, path: &Path) -> EvalError {
+fn plot_err(e: &dyn std::fmt::Display, path: &Path) -> EvalError {
     EvalError::Run {
         what: path.display().to_string(),
         message: e.to_string(),
@@ -263,6 +263,58 @@ const COLOURS: [RGBColor; 4] = [
     RGBColor(20, 150, 60),
     RGBColor(150, 80, 180),
 ];
+
+type Range = std::ops::Range<f64>;
+
+/// One SVG line chart: an optional black reference line and coloured series, with a legend.
+fn line_plot(
+    file: &Path,
+    size: (u32, u32),
+    caption: &str,
+    (x_desc, y_desc): (&str, &str),
+    (x_range, y_range): (Range, Range),
+    reference: Option<(&str, &[(f64, f64)])>,
+    series: &[(String, Vec<(f64, f64)>)],
+) -> Result<(), EvalError> {
+    let err = |e: &dyn std::fmt::Display| plot_err(e, file);
+    let root = SVGBackend::new(file, size).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(caption, ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d(x_range, y_range)
+        .map_err(|e| err(&e))?;
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .draw()
+        .map_err(|e| err(&e))?;
+    if let Some((name, line)) = reference {
+        chart
+            .draw_series(LineSeries::new(line.iter().copied(), BLACK.stroke_width(3)))
+            .map_err(|e| err(&e))?
+            .label(name)
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(3)));
+    }
+    for (i, (name, v)) in series.iter().enumerate() {
+        let c = COLOURS[i % COLOURS.len()];
+        chart
+            .draw_series(LineSeries::new(v.iter().copied(), c.stroke_width(2)))
+            .map_err(|e| err(&e))?
+            .label(name.clone())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| err(&e))?;
+    root.present().map_err(|e| err(&e))
+}
 
 /// Fig. 12-style plots of one trajectory: desired vs reached tip path (y–z projection, across
 /// the manipulator's axis) and the position error along the path, for repeat 0 of each
@@ -305,100 +357,43 @@ pub fn plots(robot: &Robot, runs: &[RunRecord], trajectory: &str, dir: &Path) ->
     }
     let pad = 2.0;
     let path_file = dir.join(format!("path_{trajectory}.svg"));
-    {
-        let root = SVGBackend::new(&path_file, (760, 640)).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| plot_err(e, &path_file))?;
-        let mut chart = ChartBuilder::on(&root)
-            .caption(
-                format!("{trajectory}: desired vs reached tip path (truth, repeat 0)"),
-                ("sans-serif", 20),
-            )
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(50)
-            .build_cartesian_2d((y0 - pad)..(y1 + pad), (z0 - pad)..(z1 + pad))
-            .map_err(|e| plot_err(e, &path_file))?;
-        chart
-            .configure_mesh()
-            .x_desc("y [mm]")
-            .y_desc("z [mm]")
-            .draw()
-            .map_err(|e| plot_err(e, &path_file))?;
-        chart
-            .draw_series(LineSeries::new(desired.iter().copied(), BLACK.stroke_width(3)))
-            .map_err(|e| plot_err(e, &path_file))?
-            .label("desired")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(3)));
-        for (i, (name, v)) in reached.iter().enumerate() {
-            let c = COLOURS[i % COLOURS.len()];
-            chart
-                .draw_series(LineSeries::new(v.iter().copied(), c.stroke_width(2)))
-                .map_err(|e| plot_err(e, &path_file))?
-                .label(name.clone())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
-        }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(|e| plot_err(e, &path_file))?;
-        root.present().map_err(|e| plot_err(e, &path_file))?;
-    }
+    line_plot(
+        &path_file,
+        (760, 640),
+        &format!("{trajectory}: desired vs reached tip path (truth, repeat 0)"),
+        ("y [mm]", "z [mm]"),
+        ((y0 - pad)..(y1 + pad), (z0 - pad)..(z1 + pad)),
+        Some(("desired", &desired)),
+        &reached,
+    )?;
     let err_file = dir.join(format!("error_{trajectory}.svg"));
-    {
-        let series: Vec<(String, Vec<(f64, f64)>)> = sel
-            .iter()
-            .map(|r| {
-                let v = r
-                    .points
-                    .iter()
-                    .enumerate()
-                    .map(|(i, p)| (i as f64, (tip(&p.q_true_deg) - tip(&p.q_desired_deg)).norm()))
-                    .collect();
-                (r.controller.clone(), v)
-            })
-            .collect();
-        let n = first.points.len().max(2) as f64;
-        let ymax = series
-            .iter()
-            .flat_map(|(_, v)| v.iter().map(|p| p.1))
-            .fold(1.0f64, f64::max)
-            * 1.1;
-        let root = SVGBackend::new(&err_file, (900, 420)).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| plot_err(e, &err_file))?;
-        let mut chart = ChartBuilder::on(&root)
-            .caption(
-                format!("{trajectory}: tip position error along the path (truth)"),
-                ("sans-serif", 20),
-            )
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(50)
-            .build_cartesian_2d(0.0..n, 0.0..ymax)
-            .map_err(|e| plot_err(e, &err_file))?;
-        chart
-            .configure_mesh()
-            .x_desc("trajectory point (model step)")
-            .y_desc("position error [mm]")
-            .draw()
-            .map_err(|e| plot_err(e, &err_file))?;
-        for (i, (name, v)) in series.iter().enumerate() {
-            let c = COLOURS[i % COLOURS.len()];
-            chart
-                .draw_series(LineSeries::new(v.iter().copied(), c.stroke_width(2)))
-                .map_err(|e| plot_err(e, &err_file))?
-                .label(name.clone())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
-        }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(|e| plot_err(e, &err_file))?;
-        root.present().map_err(|e| plot_err(e, &err_file))?;
-    }
+    let series: Vec<(String, Vec<(f64, f64)>)> = sel
+        .iter()
+        .map(|r| {
+            let v = r
+                .points
+                .iter()
+                .enumerate()
+                .map(|(i, p)| (i as f64, (tip(&p.q_true_deg) - tip(&p.q_desired_deg)).norm()))
+                .collect();
+            (r.controller.clone(), v)
+        })
+        .collect();
+    let n = first.points.len().max(2) as f64;
+    let ymax = series
+        .iter()
+        .flat_map(|(_, v)| v.iter().map(|p| p.1))
+        .fold(1.0f64, f64::max)
+        * 1.1;
+    line_plot(
+        &err_file,
+        (900, 420),
+        &format!("{trajectory}: tip position error along the path (truth)"),
+        ("trajectory point (model step)", "position error [mm]"),
+        (0.0..n, 0.0..ymax),
+        None,
+        &series,
+    )?;
     Ok(vec![path_file, err_file])
 }
 
