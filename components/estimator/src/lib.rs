@@ -86,7 +86,7 @@
 //! use bowden_estimator::{Estimator, EstimatorConfig};
 //! use bowden_interfaces::{JointEstimate, MarkerSet, RgbdFrameHeader};
 //! use bowden_kinematics::{markers::MarkerGeometry, Robot};
-//! # fn frame() -> (RgbdFrameHeader, Vec<u8>) { unimplemented!() }
+//! # fn frame() -> (RgbdFrameHeader, Vec<u8>) { (RgbdFrameHeader::default(), Vec::new()) }
 //! let mut est = Estimator::new(Robot::paper_default(), MarkerGeometry::paper_default(),
 //!                              EstimatorConfig::paper_default());
 //! est.reserve_frame(640, 480); // real-time loops: no allocation from the first frame on
