@@ -15,7 +15,8 @@ fn fixtures_dir() -> PathBuf {
     if let Ok(p) = std::env::var("BOWDEN_FIXTURES") {
         return PathBuf::from(p);
     }
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/fixtures/pytorch");
+    // The copy in the repository (tests/fixtures/pytorch), so the tests are self-contained.
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/fixtures/pytorch");
     assert!(
         p.join("tcn_forward_L80_J5_s0.onnx").exists(),
         "PyTorch fixtures not found at {} (set BOWDEN_FIXTURES)",
