@@ -236,6 +236,9 @@ pub fn quiet_iceoryx2_log() {
     ONCE.call_once(|| iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error));
 }
 
+/// The RGBD frame service: a `[u8]` payload with an [`RgbdFrameHeader`].
+type FrameService<S> = iceoryx2::service::port_factory::publish_subscribe::PortFactory<S, [u8], RgbdFrameHeader>;
+
 /// One iceoryx2 node of a process and the factory of its ports.
 pub struct PortContext<S: Service = Ipc> {
     node: Node<S>,
@@ -363,9 +366,9 @@ impl<S: Service> PortContext<S> {
         })
     }
 
-    /// A publisher of RGBD frames (`[u8]` payload + [`RgbdFrameHeader`]), able to send frames of
-    /// up to `max_len` bytes without reallocating shared memory.
-    pub fn frame_output(&self, name: &str, max_len: usize) -> Result<FrameOutput<S>, PortError> {
+    /// Opens (or creates) the RGBD frame service `name` with its QoS: shared by both ends so
+    /// publisher and subscriber always agree on the service's settings.
+    fn frame_service(&self, name: &str) -> Result<(String, FrameService<S>), PortError> {
         let (full, sn) = self.service_name(name)?;
         let q = qos_for(name);
         let f = self
@@ -382,6 +385,13 @@ impl<S: Service> PortContext<S> {
             .max_nodes(q.max_nodes)
             .open_or_create()
             .map_err(|e| svc_err(&full, e))?;
+        Ok((full, f))
+    }
+
+    /// A publisher of RGBD frames (`[u8]` payload + [`RgbdFrameHeader`]), able to send frames of
+    /// up to `max_len` bytes without reallocating shared memory.
+    pub fn frame_output(&self, name: &str, max_len: usize) -> Result<FrameOutput<S>, PortError> {
+        let (full, f) = self.frame_service(name)?;
         let publisher = f
             .publisher_builder()
             .initial_max_slice_len(max_len)
@@ -399,22 +409,8 @@ impl<S: Service> PortContext<S> {
 
     /// A subscriber of RGBD frames.
     pub fn frame_input(&self, name: &str, buffer: usize) -> Result<FrameInput<S>, PortError> {
-        let (full, sn) = self.service_name(name)?;
+        let (full, f) = self.frame_service(name)?;
         let q = qos_for(name);
-        let f = self
-            .node
-            .service_builder(&sn)
-            .publish_subscribe::<[u8]>()
-            .user_header::<RgbdFrameHeader>()
-            .max_publishers(q.max_publishers)
-            .max_subscribers(q.max_subscribers)
-            .subscriber_max_buffer_size(q.max_buffer)
-            .subscriber_max_borrowed_samples(q.max_borrowed)
-            .history_size(q.history)
-            .enable_safe_overflow(q.safe_overflow)
-            .max_nodes(q.max_nodes)
-            .open_or_create()
-            .map_err(|e| svc_err(&full, e))?;
         let subscriber = f
             .subscriber_builder()
             .buffer_size(buffer.clamp(1, q.max_buffer))
