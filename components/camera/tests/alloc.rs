@@ -1,29 +1,34 @@
 //! The render path allocates nothing after construction: proven with a counting global
-//! allocator (this test binary's own).
+//! allocator (this test binary's own). Counting is per thread: libtest's main thread may allocate
+//! its own bookkeeping while the test runs, and the render path is single-threaded.
 
 use bowden_camera::{CameraConfig, SyntheticCamera};
 use bowden_kinematics::{markers::MarkerGeometry, Robot};
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::cell::Cell;
 
 struct Counting;
-static COUNTING: AtomicBool = AtomicBool::new(false);
-static ALLOCS: AtomicUsize = AtomicUsize::new(0);
+thread_local! {
+    static COUNTING: Cell<bool> = const { Cell::new(false) };
+    static ALLOCS: Cell<usize> = const { Cell::new(0) };
+}
+
+fn count() {
+    if COUNTING.try_with(|c| c.get()).unwrap_or(false) {
+        let _ = ALLOCS.try_with(|a| a.set(a.get() + 1));
+    }
+}
 
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if COUNTING.load(Ordering::SeqCst) {
-            ALLOCS.fetch_add(1, Ordering::SeqCst);
-        }
+        count();
         unsafe { System.alloc(layout) }
     }
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
         unsafe { System.dealloc(ptr, layout) }
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if COUNTING.load(Ordering::SeqCst) {
-            ALLOCS.fetch_add(1, Ordering::SeqCst);
-        }
+        count();
         unsafe { System.realloc(ptr, layout, new_size) }
     }
 }
@@ -47,8 +52,7 @@ fn render_allocates_nothing_after_construction() {
         [60.0, -60.0, 44.0, -50.0, 50.0],
         [-35.0, 20.0, -10.0, 5.0, 5.0],
     ];
-    // The only test in this binary, so no other thread allocates while counting.
-    COUNTING.store(true, Ordering::SeqCst);
+    COUNTING.with(|c| c.set(true));
     for (k, q) in qs.iter().enumerate() {
         cam.render(q, k as u64, &mut rgb, &mut depth).expect("render");
         cam.render_into_payload(q, k as u64, &mut payload).expect("payload");
@@ -57,6 +61,6 @@ fn render_allocates_nothing_after_construction() {
     }
     // Rejections allocate nothing either.
     let _ = cam.render(&[f64::NAN; 5], 0, &mut rgb, &mut depth);
-    COUNTING.store(false, Ordering::SeqCst);
-    assert_eq!(ALLOCS.load(Ordering::SeqCst), 0, "allocations in the render path");
+    COUNTING.with(|c| c.set(false));
+    assert_eq!(ALLOCS.with(|a| a.get()), 0, "allocations in the render path");
 }
