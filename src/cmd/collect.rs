@@ -37,6 +37,10 @@ pub struct CollectArgs {
     /// Output directory: dataset.csv + manifest.json.
     #[arg(long)]
     pub out: PathBuf,
+    /// `paper`: eq. (16) exactly. `mixed`: eq. (16) with per-segment step multipliers 1–4 and
+    /// dither up to ±20°, so the models also learn the jumps a compensator commands on reversals.
+    #[arg(long, default_value = "paper", value_parser = ["paper", "mixed"])]
+    pub excitation: String,
 }
 
 #[derive(Subcommand)]
@@ -59,7 +63,12 @@ fn collect(a: CollectArgs) -> Result<()> {
         bail!("--settle-ticks must be at least 1");
     }
     let robot = Robot::load(&a.robot)?;
-    let commands = bowden_trajectory::dataset_commands(&robot, a.samples, a.seed);
+    let excitation = match a.excitation.as_str() {
+        "mixed" => bowden_trajectory::Excitation::mixed(),
+        _ => bowden_trajectory::Excitation::paper(),
+    };
+    let commands = bowden_trajectory::excitation_commands(&robot, a.samples, a.seed, &excitation)
+        .map_err(|e| anyhow::anyhow!("--excitation {}: {e}", a.excitation))?;
     let work = a.out.join("pipeline");
     let tick_ns = PipelineConfig::load(&a.config, &Overrides::default())?.period_ns();
     let mut set = vec![
@@ -164,6 +173,11 @@ fn collect(a: CollectArgs) -> Result<()> {
         "settle_ticks": a.settle_ticks,
         "tick_ns": cfg.period_ns(),
         "step_deg": bowden_trajectory::DATASET_STEP_DEG,
+        "excitation": {
+            "name": a.excitation,
+            "step_multipliers": excitation.step_multipliers,
+            "dither_deg": excitation.dither_deg,
+        },
     });
     let manifest = data.write_dir(
         &a.out,

@@ -100,6 +100,124 @@ pub fn dataset_commands(robot: &Robot, n_configs: usize, seed: u64) -> Vec<Joint
     interpolate_eq16(&configs)
 }
 
+/// How the dataset excites the plant beyond eq. (16).
+///
+/// The paper's sequence moves one 3·√5 step per command, so a model trained on it has never
+/// seen the command jump. A hysteresis compensator must jump: on every reversal it crosses the
+/// dead band in one command, and its forward model is then asked about a history it never
+/// learned (measured here: the shipped forward model's error grows from ≈ 1° on the
+/// uncalibrated commands of the test trajectories to 3–5° on the compensated ones). The plant
+/// is rate-independent and each command is held until it settles, so a sequence of held commands
+/// with larger steps is as physical as eq. (16); a dataset that mixes step sizes and dither
+/// covers the commands the compensator actually sends.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Excitation {
+    /// Per segment (pair of random configurations) the step is `DATASET_STEP_DEG ×` one of these,
+    /// drawn uniformly. `[1.0]` is eq. (16).
+    pub step_multipliers: Vec<f64>,
+    /// Per segment, every command but the segment's first is offset by i.i.d. uniform noise of
+    /// ± one of these amplitudes (deg, per joint), drawn uniformly; clamped to the limits.
+    /// `[0.0]` is eq. (16).
+    pub dither_deg: Vec<f64>,
+}
+
+impl Excitation {
+    /// The paper's eq. (16).
+    pub fn paper() -> Self {
+        Self {
+            step_multipliers: vec![1.0],
+            dither_deg: vec![0.0],
+        }
+    }
+
+    /// eq. (16) mixed with jumps (1–4 steps) and dither (0–20°): what `bowden collect
+    /// --excitation mixed` records.
+    pub fn mixed() -> Self {
+        Self {
+            step_multipliers: vec![1.0, 2.0, 3.0, 4.0],
+            dither_deg: vec![0.0, 5.0, 10.0, 20.0],
+        }
+    }
+
+    /// Whether this is plain eq. (16).
+    pub fn is_paper(&self) -> bool {
+        self.step_multipliers.iter().all(|&m| m == 1.0) && self.dither_deg.iter().all(|&d| d == 0.0)
+    }
+
+    fn validate(&self) -> Result<(), String> {
+        if self.step_multipliers.is_empty() || self.dither_deg.is_empty() {
+            return Err("excitation: step multipliers and dither amplitudes must not be empty".into());
+        }
+        if let Some(m) = self.step_multipliers.iter().find(|m| !(m.is_finite() && **m > 0.0)) {
+            return Err(format!("excitation: step multiplier {m} must be finite and > 0"));
+        }
+        if let Some(d) = self.dither_deg.iter().find(|d| !(d.is_finite() && **d >= 0.0)) {
+            return Err(format!("excitation: dither amplitude {d}° must be finite and ≥ 0"));
+        }
+        Ok(())
+    }
+}
+
+/// Commands for `n_configs` random configurations (seeded ChaCha8) under an [`Excitation`].
+/// `Excitation::paper()` gives exactly [`dataset_commands`]. Every command is inside the joint
+/// limits.
+pub fn excitation_commands(
+    robot: &Robot,
+    n_configs: usize,
+    seed: u64,
+    excitation: &Excitation,
+) -> Result<Vec<JointsDeg>, String> {
+    excitation.validate()?;
+    if excitation.is_paper() {
+        return Ok(dataset_commands(robot, n_configs, seed));
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let configs = random_configurations(robot, n_configs, &mut rng);
+    // A second stream for the per-segment choices, so the configurations are those of eq. (16)
+    // with the same seed.
+    let mut pick = ChaCha8Rng::seed_from_u64(seed ^ 0x9e37_79b9_7f4a_7c15);
+    let mut out = Vec::new();
+    for pair in configs.windows(2) {
+        let m = excitation.step_multipliers[pick.random_range(0..excitation.step_multipliers.len())];
+        let amp = excitation.dither_deg[pick.random_range(0..excitation.dither_deg.len())];
+        let segment = interpolate_with_step(&pair[0], &pair[1], DATASET_STEP_DEG * m);
+        for (j, q) in segment.iter().enumerate() {
+            let mut c = *q;
+            if j > 0 && amp > 0.0 {
+                for v in c.iter_mut() {
+                    *v += pick.random_range(-amp..=amp);
+                }
+                c = robot.clamp_to_limits(&c);
+            }
+            out.push(c);
+        }
+    }
+    if let Some(last) = configs.last() {
+        out.push(*last);
+    }
+    Ok(out)
+}
+
+/// One segment of eq. (16) with another step: from `a` (included) towards `b` (excluded).
+fn interpolate_with_step(a: &JointsDeg, b: &JointsDeg, step_deg: f64) -> Vec<JointsDeg> {
+    let delta: [f64; N_JOINTS] = core::array::from_fn(|k| b[k] - a[k]);
+    let dist = delta.iter().map(|d| d * d).sum::<f64>().sqrt();
+    if dist == 0.0 {
+        return Vec::new();
+    }
+    let n_steps = (dist / step_deg).floor() as usize;
+    let mut out = Vec::with_capacity(n_steps + 1);
+    for j in 0..=n_steps {
+        let s = j as f64 * step_deg;
+        if j > 0 && (dist - s).abs() < 1e-9 {
+            break;
+        }
+        let t = s / dist;
+        out.push(core::array::from_fn(|k| a[k] + t * delta[k]));
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -207,5 +325,34 @@ mod tests {
             };
             assert!((m - expect).abs() < 3.0, "q{} mean {m} expected {expect}", j + 1);
         }
+    }
+
+    #[test]
+    fn paper_excitation_is_eq16_and_mixed_stays_inside_the_limits() {
+        let robot = Robot::paper_default();
+        let paper = excitation_commands(&robot, 50, 9, &Excitation::paper()).unwrap();
+        assert_eq!(paper, dataset_commands(&robot, 50, 9));
+        let mixed = excitation_commands(&robot, 300, 9, &Excitation::mixed()).unwrap();
+        assert_eq!(
+            mixed,
+            excitation_commands(&robot, 300, 9, &Excitation::mixed()).unwrap()
+        );
+        for q in &mixed {
+            robot.check_limits(q).expect("inside the limits");
+        }
+        // It jumps: some consecutive commands are far more than one eq. (16) step apart, and
+        // the largest is bounded by four steps plus twice the largest dither on every joint.
+        let steps: Vec<f64> = mixed.windows(2).map(|w| dist(&w[0], &w[1])).collect();
+        let big = steps.iter().filter(|&&d| d > 2.0 * DATASET_STEP_DEG).count();
+        assert!(big > steps.len() / 5, "{big} of {} steps are jumps", steps.len());
+        let bound = 4.0 * DATASET_STEP_DEG + 2.0 * 20.0 * (N_JOINTS as f64).sqrt() + 1e-9;
+        assert!(steps.iter().all(|&d| d <= bound + DATASET_STEP_DEG));
+        let bad = Excitation {
+            step_multipliers: vec![0.0],
+            dither_deg: vec![0.0],
+        };
+        assert!(excitation_commands(&robot, 10, 1, &bad)
+            .unwrap_err()
+            .contains("multiplier"));
     }
 }

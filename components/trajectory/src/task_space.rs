@@ -282,7 +282,8 @@ impl TrajectorySpec {
     }
 
     /// Joint-space trajectory: position IK along the dense path, then resampled at the
-    /// model step (3·√5 deg of joint-space arc length, as eq. 16 spaced the training data).
+    /// model step: consecutive points 3·√5 deg apart in joint space (straight-line distance, as
+    /// eq. 16 spaced the training data and as the compensator's history rule measures).
     pub fn to_joint_space(&self, robot: &Robot, path: &Path) -> Result<JointTrajectory, TrajectoryError> {
         self.to_joint_space_with_step(robot, path, DATASET_STEP_DEG)
     }
@@ -344,7 +345,7 @@ impl TrajectorySpec {
         }
         Ok(JointTrajectory {
             name: self.name.clone(),
-            q_deg: resample_by_arc_length(&joints, step_deg),
+            q_deg: resample_by_chord(&joints, step_deg),
         })
     }
 }
@@ -419,6 +420,49 @@ pub fn resample_by_arc_length(q: &[JointsDeg], step_deg: f64) -> Vec<JointsDeg> 
     out
 }
 
+/// Points exactly `step_deg` apart in straight-line joint-space distance along a polyline
+/// (first point kept; the last point is added if it is over half a step from the previous one).
+///
+/// Arc-length spacing on a curved path puts consecutive points closer than `step_deg` (the
+/// chord is shorter than the arc): the compensator's `distance` history rule would then skip
+/// some of them, and its history would not be the sequence of held commands the plant saw.
+pub fn resample_by_chord(q: &[JointsDeg], step_deg: f64) -> Vec<JointsDeg> {
+    let Some(first) = q.first() else { return Vec::new() };
+    let dist = |a: &JointsDeg, b: &JointsDeg| a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>().sqrt();
+    let mut out = vec![*first];
+    for w in q.windows(2) {
+        // Every crossing of the sphere of radius `step_deg` around the last output point on
+        // this polyline segment: solve |a + t(b − a) − c| = step for the largest t in [0, 1].
+        loop {
+            let c = *out.last().unwrap_or(first);
+            let (a, b) = (&w[0], &w[1]);
+            if dist(&c, b) < step_deg {
+                break;
+            }
+            let (mut aa, mut bb, mut cc) = (0.0, 0.0, -step_deg * step_deg);
+            for j in 0..a.len() {
+                let d = b[j] - a[j];
+                let e = a[j] - c[j];
+                aa += d * d;
+                bb += 2.0 * d * e;
+                cc += e * e;
+            }
+            if aa == 0.0 {
+                break;
+            }
+            let disc = (bb * bb - 4.0 * aa * cc).max(0.0);
+            let t = ((-bb + disc.sqrt()) / (2.0 * aa)).clamp(0.0, 1.0);
+            out.push(core::array::from_fn(|j| a[j] + t * (b[j] - a[j])));
+        }
+    }
+    if let (Some(last), Some(prev)) = (q.last(), out.last()) {
+        if dist(prev, last) > 0.5 * step_deg {
+            out.push(*last);
+        }
+    }
+    out
+}
+
 /// Loads every `*.toml` trajectory of a directory whose name is in `names` (all if empty),
 /// in the order of `names`.
 pub fn load_named(dir: &Path, names: &[String]) -> Result<Vec<(PathBuf, TrajectorySpec)>, TrajectoryError> {
@@ -442,6 +486,36 @@ mod tests {
         for w in r.windows(2).take(16) {
             assert!((w[1][0] - w[0][0] - 3.0).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn chord_resampling_puts_points_exactly_one_step_apart_on_a_curve() {
+        // A circle of radius 20 deg in (q1, q2): arc-length spacing gives shorter chords.
+        let q: Vec<JointsDeg> = (0..=720)
+            .map(|i| {
+                let a = i as f64 * std::f64::consts::PI / 360.0;
+                [20.0 * a.cos(), 20.0 * a.sin(), 0.0, 0.0, 0.0]
+            })
+            .collect();
+        let step = DATASET_STEP_DEG;
+        let r = resample_by_chord(&q, step);
+        let d = |w: &[JointsDeg]| {
+            w[0].iter()
+                .zip(&w[1])
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum::<f64>()
+                .sqrt()
+        };
+        for w in r.windows(2).take(r.len() - 2) {
+            assert!((d(w) - step).abs() < 1e-9, "chord {}", d(w));
+        }
+        let arc = resample_by_arc_length(&q, step);
+        assert!(
+            d(&arc[0..2]) < step - 0.01,
+            "arc spacing makes shorter chords on a curve"
+        );
+        // Circumference 125.7 deg: about 19 chords of 6.7 deg.
+        assert!((18..=21).contains(&r.len()), "{} points", r.len());
     }
 
     #[test]
