@@ -41,15 +41,16 @@ fn short_evaluation_calibrated_beats_uncalibrated() {
     };
     let runs = v["runs"].as_array().unwrap();
     assert_eq!(runs.len(), 6, "3 controllers × 2 repeats");
-    // The best calibrated controller beats the uncalibrated one by a clear margin, measured
-    // both by vision and by the simulator's truth (measured: 7.5 mm → 5.0 mm with paper mode).
+    // Both calibrated controllers beat the uncalibrated one by a clear margin, measured both
+    // by vision and by the simulator's truth (measured with the shipped models: 7.48 mm →
+    // 0.77 mm paper mode, 0.74 mm newton; the models trained on eq. (16) alone reached only
+    // 0.66× of uncalibrated, so this fails if the shipped models regress to them).
     for by in ["task_truth", "task_vision"] {
         let u = pos("uncalibrated", by);
-        let best = pos("paper", by).min(pos("newton", by));
-        assert!(
-            best < 0.8 * u,
-            "{by}: best calibrated {best:.2} mm vs uncalibrated {u:.2} mm"
-        );
+        for ctrl in ["paper", "newton"] {
+            let c = pos(ctrl, by);
+            assert!(c < 0.3 * u, "{by}: {ctrl} {c:.2} mm vs uncalibrated {u:.2} mm");
+        }
     }
     // Repeats differ (their own seeds) but the same seed gives the same run: checked by the
     // runtime's determinism tests; here the two repeats must not be byte-identical.

@@ -74,6 +74,43 @@ fn approach_path(q: &[bowden_kinematics::JointsDeg]) -> Vec<bowden_kinematics::J
     path
 }
 
+/// "controller FILE (forward MODEL, inverse MODEL)" of a pipeline's compensator node, for the
+/// report header: a table is only worth as much as knowing which models produced it.
+fn describe_controller(pipeline: &std::path::Path) -> String {
+    let find = || -> Option<String> {
+        let v: toml::Value = toml::from_str(&std::fs::read_to_string(pipeline).ok()?).ok()?;
+        let node = v
+            .get("node")?
+            .as_array()?
+            .iter()
+            .find(|n| n.get("name").and_then(|x| x.as_str()) == Some("compensator"))?;
+        let file = node.get("params")?.get("config")?.as_str()?;
+        let mut path = std::path::PathBuf::from(file);
+        if path.is_relative() {
+            path = pipeline.parent()?.join(path);
+        }
+        let cfg = bowden_compensator::ControllerConfig::load(&path).ok()?;
+        let name = |m: &Option<std::path::PathBuf>| {
+            m.as_ref()
+                .and_then(|p| p.file_name())
+                .map(|f| f.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "none".into())
+        };
+        // Relative to the working directory when inside it, so reports do not name the machine.
+        let shown = std::env::current_dir()
+            .ok()
+            .and_then(|d| path.strip_prefix(d).ok().map(|p| p.display().to_string()))
+            .unwrap_or_else(|| file.to_string());
+        Some(format!(
+            "controller {} (forward {}, inverse {})",
+            shown,
+            name(&cfg.model_fwd),
+            name(&cfg.model_inv)
+        ))
+    };
+    find().unwrap_or_else(|| "controller config not readable".into())
+}
+
 fn evaluate(a: EvaluateArgs) -> Result<()> {
     for c in &a.controllers {
         if !CONTROLLERS.contains(&c.as_str()) {
@@ -159,13 +196,17 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
     bar.finish_and_clear();
     let summary = summarise(&robot, &runs);
     let header = format!(
-        "{} trajectories × {} controllers × {} repeats; points held {} ticks; pipeline {}; robot {}.",
+        "{} trajectories × {} controllers × {} repeats; points held {} ticks; pipeline {}; robot {}; {}.",
         a.trajectories.len(),
         a.controllers.len(),
         a.repeats,
         a.settle_ticks,
         a.config.display(),
-        a.robot.display()
+        a.robot.display(),
+        pipelines
+            .first()
+            .map(|p| describe_controller(p))
+            .unwrap_or_else(|| "no controller".into())
     );
     let files = write_report(&robot, &runs, &summary, &header, &a.report)?;
     if let Some(j) = &a.json {
