@@ -583,8 +583,15 @@ fn proto_lstms(graph: &pb::GraphProto) -> Vec<ProtoLstm> {
                 note(format!("LSTM bias of shape {bd:?}"));
             }
         }
+        // Y_c (output 2) is read by a node or is a graph output.
+        let final_cell_used = n.output.get(2).is_some_and(|y_c| {
+            !y_c.is_empty()
+                && (graph.node.iter().any(|m| m.input.iter().any(|i| i == y_c))
+                    || graph.output.iter().any(|o| &o.name == y_c))
+        });
         out.push(ProtoLstm {
             name: n.name.clone(),
+            final_cell_used,
             input,
             hidden,
             w: wv,

@@ -38,6 +38,9 @@ pub(crate) struct ProtoLstm {
     pub b: Vec<f32>,
     /// Why this node cannot be run by the evaluator (peepholes, other activations, …).
     pub unsupported: Option<String>,
+    /// The final cell state `Y_c` feeds something. The final hidden state `Y_h` is the hidden
+    /// sequence's last column and is supported; `Y_c` is not.
+    pub final_cell_used: bool,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -805,7 +808,29 @@ impl Walker<'_> {
         for m in &scan.output_mapping {
             if let Some(slot) = m.last_value_slot {
                 if used(slot) {
-                    return Err("the LSTM's final state is used (only the hidden sequence is supported)".into());
+                    if lstm.final_cell_used {
+                        return Err(
+                            "the LSTM's final cell state Y_c is used (only the hidden state is supported)".into(),
+                        );
+                    }
+                    // With Y_c unused, the only final state anything reads is Y_h: for a single
+                    // forward LSTM from a zero state that is the hidden sequence's last column
+                    // (what `bowden train` exports, and PyTorch's `h_n`).
+                    let take = self.push(Op::TakeLast { src: new }, false, lstm.hidden);
+                    let dims = self.fact_dims(OutletId::new(id, slot))?;
+                    let chan = (0..dims.len())
+                        .rev()
+                        .find(|&a| dims[a] == lstm.hidden)
+                        .ok_or("cannot find the hidden axis of Y_h")?;
+                    let v = Val {
+                        node: take,
+                        dims,
+                        time: None,
+                        chan,
+                        pending: Pending::None,
+                    };
+                    self.check_layout(&v, 1)?;
+                    self.slots.insert(OutletId::new(id, slot), Slot::Val(v));
                 }
             }
             if let Some((slot, info)) = m.scan {
