@@ -71,22 +71,7 @@ pub fn interpolate_eq16(configs: &[JointsDeg]) -> Vec<JointsDeg> {
     };
     let mut out = Vec::new();
     for pair in configs.windows(2) {
-        let (a, b) = (&pair[0], &pair[1]);
-        let delta: [f64; N_JOINTS] = core::array::from_fn(|k| b[k] - a[k]);
-        let dist = delta.iter().map(|d| d * d).sum::<f64>().sqrt();
-        if dist == 0.0 {
-            continue;
-        }
-        let n_steps = (dist / DATASET_STEP_DEG).floor() as usize;
-        for j in 0..=n_steps {
-            let s = j as f64 * DATASET_STEP_DEG;
-            // An exact hit of the pair's end is the next pair's j = 0 (or the appended last).
-            if j > 0 && (dist - s).abs() < 1e-9 {
-                break;
-            }
-            let t = s / dist;
-            out.push(core::array::from_fn(|k| a[k] + t * delta[k]));
-        }
+        out.extend(interpolate_with_step(&pair[0], &pair[1], DATASET_STEP_DEG));
     }
     out.push(*last);
     out
@@ -198,7 +183,8 @@ pub fn excitation_commands(
     Ok(out)
 }
 
-/// One segment of eq. (16) with another step: from `a` (included) towards `b` (excluded).
+/// One segment of eq. (16) with a given step: from `a` (included) towards `b` (excluded; an exact
+/// hit of `b` is the next segment's start). Identical configurations give nothing.
 fn interpolate_with_step(a: &JointsDeg, b: &JointsDeg, step_deg: f64) -> Vec<JointsDeg> {
     let delta: [f64; N_JOINTS] = core::array::from_fn(|k| b[k] - a[k]);
     let dist = delta.iter().map(|d| d * d).sum::<f64>().sqrt();
@@ -209,6 +195,7 @@ fn interpolate_with_step(a: &JointsDeg, b: &JointsDeg, step_deg: f64) -> Vec<Joi
     let mut out = Vec::with_capacity(n_steps + 1);
     for j in 0..=n_steps {
         let s = j as f64 * step_deg;
+        // An exact hit of the pair's end is the next pair's j = 0 (or the appended last).
         if j > 0 && (dist - s).abs() < 1e-9 {
             break;
         }
