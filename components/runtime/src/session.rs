@@ -493,36 +493,21 @@ impl LockstepSession {
         let p = &core.ports;
         let t = opts.taps;
         let taps = TapInputs {
-            joint_target: if t.joint_target {
-                Some(p.input(services::JOINT_TARGET, 8)?)
-            } else {
-                None
-            },
-            joint_command: if t.joint_command {
-                Some(p.input(services::JOINT_COMMAND, 8)?)
-            } else {
-                None
-            },
-            motor_command: if t.motor_command {
-                Some(p.input(services::MOTOR_COMMAND, 8)?)
-            } else {
-                None
-            },
-            plant_state: if t.plant_state {
-                Some(p.input(services::PLANT_STATE, 8)?)
-            } else {
-                None
-            },
-            marker_set: if t.marker_set {
-                Some(p.input(services::MARKER_SET, 8)?)
-            } else {
-                None
-            },
-            joint_estimate: if t.joint_estimate {
-                Some(p.input(services::JOINT_ESTIMATE, 8)?)
-            } else {
-                None
-            },
+            joint_target: t.joint_target.then(|| p.input(services::JOINT_TARGET, 8)).transpose()?,
+            joint_command: t
+                .joint_command
+                .then(|| p.input(services::JOINT_COMMAND, 8))
+                .transpose()?,
+            motor_command: t
+                .motor_command
+                .then(|| p.input(services::MOTOR_COMMAND, 8))
+                .transpose()?,
+            plant_state: t.plant_state.then(|| p.input(services::PLANT_STATE, 8)).transpose()?,
+            marker_set: t.marker_set.then(|| p.input(services::MARKER_SET, 8)).transpose()?,
+            joint_estimate: t
+                .joint_estimate
+                .then(|| p.input(services::JOINT_ESTIMATE, 8))
+                .transpose()?,
         };
         let target_out = if cfg.producer_of(services::JOINT_TARGET).is_none() {
             Some((
