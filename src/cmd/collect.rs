@@ -164,11 +164,19 @@ fn collect(a: CollectArgs) -> Result<()> {
             .as_ref()
             .and_then(|p| std::fs::read_to_string(p).ok())
             .unwrap_or_default();
+    let plant_unit = match &a.plant {
+        Some(f) => bowden_plant::PlantConfig::load(f)?,
+        None => bowden_plant::PlantConfig::paper_default(),
+    }
+    .variation
+    .unit_for_run(a.seed);
     let provenance = serde_json::json!({
         "command": std::env::args().collect::<Vec<_>>(),
         "pipeline": pipeline.display().to_string(),
         "robot": a.robot.display().to_string(),
         "plant": a.plant.as_ref().map(|p| p.display().to_string()),
+        // The manufactured unit the data describes (the plant file's, else the run's seed).
+        "plant_unit": plant_unit,
         "random_configurations": a.samples,
         "settle_ticks": a.settle_ticks,
         "tick_ns": cfg.period_ns(),

@@ -28,9 +28,15 @@ pub struct EvaluateArgs {
     /// Controllers: uncalibrated, paper (Algorithm 1), newton.
     #[arg(long, value_delimiter = ',', default_value = "uncalibrated,paper,newton")]
     pub controllers: Vec<String>,
-    /// Runs of every (trajectory, controller), each with its own seed (plant and camera noise).
+    /// Runs of every (trajectory, controller), each with its own seed (camera noise; with
+    /// `--units per-repeat` also the plant unit).
     #[arg(long, default_value_t = 5)]
     pub repeats: u32,
+    /// Which manufactured unit of the plant runs: `configured` (the plant file's
+    /// `variation.unit`, the robot the models were trained on, as the paper evaluated) or
+    /// `per-repeat` (repeat r runs unit seed + r: other units of the same design, a transfer test).
+    #[arg(long, value_enum, default_value_t = Units::Configured)]
+    pub units: Units,
     #[arg(long, default_value_t = 1000)]
     pub seed: u64,
     /// Ticks each point is held; the last is measured (5 × 100 ms = the paper's 0.5 s pause).
@@ -51,6 +57,12 @@ pub struct EvaluateArgs {
     /// Also write the summary JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Units {
+    Configured,
+    PerRepeat,
 }
 
 #[derive(Subcommand)]
@@ -143,6 +155,9 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
             ("compensator", "mode", toml::Value::String(c.clone())),
             ("camera", "fps", toml::Value::Float(fps)),
         ];
+        if a.units == Units::PerRepeat {
+            set.push(("plant", "unit", toml::Value::String("run-seed".into())));
+        }
         for (node, file) in [("plant", &a.plant), ("compensator", &a.controller_config)] {
             if let Some(f) = file {
                 let abs = std::fs::canonicalize(f).with_context(|| format!("{}", f.display()))?;
@@ -195,14 +210,33 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
     }
     bar.finish_and_clear();
     let summary = summarise(&robot, &runs);
+    let plant_cfg = match &a.plant {
+        Some(f) => bowden_plant::PlantConfig::load(f)?,
+        None => bowden_plant::PlantConfig::paper_default(),
+    };
+    let plant_name = a
+        .plant
+        .as_ref()
+        .map(|p| p.display().to_string())
+        .unwrap_or_else(|| "configs/plant.toml".into());
+    let units = match (a.units, plant_cfg.variation.unit) {
+        (Units::Configured, Some(u)) => format!("unit {u}"),
+        (Units::Configured, None) | (Units::PerRepeat, _) => format!(
+            "units {}..={}, one per repeat",
+            a.seed,
+            a.seed + u64::from(a.repeats) - 1
+        ),
+    };
     let header = format!(
-        "{} trajectories × {} controllers × {} repeats; points held {} ticks; pipeline {}; robot {}; {}.",
+        "{} trajectories × {} controllers × {} repeats; points held {} ticks; pipeline {}; robot {}; plant {} ({}); {}.",
         a.trajectories.len(),
         a.controllers.len(),
         a.repeats,
         a.settle_ticks,
         a.config.display(),
         a.robot.display(),
+        plant_name,
+        units,
         pipelines
             .first()
             .map(|p| describe_controller(p))

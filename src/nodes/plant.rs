@@ -16,6 +16,24 @@ struct Params {
     /// Plant file (configs/plant.toml layout); the shipped one when absent.
     #[serde(default)]
     config: Option<PathBuf>,
+    /// Simulate this manufactured unit instead of the plant file's `variation.unit`: a number,
+    /// or "run-seed" for the unit the run's seed picks (a controller tried on other units of
+    /// the same design than the one it was trained on: `bowden evaluate --units per-repeat`).
+    #[serde(default)]
+    unit: Option<UnitChoice>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+enum UnitChoice {
+    Number(u64),
+    Named(UnitName),
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+enum UnitName {
+    RunSeed,
 }
 
 struct PlantStage {
@@ -37,7 +55,13 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         Some(f) => PlantConfig::load(super::resolve(env, f)).map_err(|e| env.error(e))?,
         None => PlantConfig::paper_default(),
     };
-    let plant = Plant::new(&robot, &cfg, env.pipeline.runtime.seed);
+    let run_seed = env.pipeline.runtime.seed;
+    let unit = match p.unit {
+        Some(UnitChoice::Number(u)) => u,
+        Some(UnitChoice::Named(UnitName::RunSeed)) => run_seed,
+        None => cfg.variation.unit_for_run(run_seed),
+    };
+    let plant = Plant::new(&robot, &cfg, unit);
     // Before the first command the drive holds the straight pose.
     let w_mm = robot.cables().displacements_mm(&[0.0; 5]);
     Ok(Box::new(PlantStage {

@@ -288,7 +288,7 @@ impl Actuator {
             Some(v) => core::array::from_fn(|j| v[j]),
             None => [0.0; N_JOINTS],
         };
-        if let Err(e) = robot.check_limits(&q0) {
+        if let Err(e) = robot.check_command_limits(&q0) {
             return Err(ActuatorError::Invalid {
                 origin: origin.to_string(),
                 field: "initial_q_deg",
@@ -388,12 +388,12 @@ impl Actuator {
         }
         let requested: [f64; N_JOINTS] = core::array::from_fn(|j| q_cmd_deg[j]);
         let mut flags = 0;
-        let target = match self.robot.check_limits(&requested) {
+        let target = match self.robot.check_command_limits(&requested) {
             Ok(()) => requested,
             Err(_) if self.out_of_range == OutOfRange::Clamp => {
                 self.counters.clamped += 1;
                 flags |= MotorCommand::FLAG_CLAMPED;
-                self.robot.clamp_to_limits(&requested)
+                self.robot.clamp_command_to_limits(&requested)
             }
             Err(e) => {
                 self.counters.rejected_out_of_range += 1;
@@ -589,6 +589,29 @@ mod tests {
         assert!(matches!(r.rejection, Some(Rejection::OutOfRange { joint: 1, .. })));
         assert_eq!(r.output.q_cmd_deg[0], 0.0);
         assert_eq!(b.counters().rejected_out_of_range, 1);
+    }
+
+    #[test]
+    fn jaws_may_be_commanded_past_each_other_down_to_the_command_bound() {
+        // The shipped robot lets a command overlap the jaws by 30° (its dead band keeps the
+        // jaws themselves apart); beyond that the command is clamped or refused.
+        let mut a = act(ActuatorConfig::default());
+        a.command(&[0.0; 5], 5, 0);
+        let crossed = [0.0, 0.0, 0.0, 10.0, -10.0];
+        let r = a.command(&crossed, 5, 1000 * MS);
+        assert_eq!(r.rejection, None);
+        assert_eq!(r.output.q_cmd_deg, crossed);
+        assert_eq!(r.output.flags & MotorCommand::FLAG_CLAMPED, 0);
+        let r = a.command(&[0.0, 0.0, 0.0, 20.0, -20.0], 5, 2000 * MS);
+        assert!((r.output.q_cmd_deg[4] - r.output.q_cmd_deg[3] + 30.0).abs() < 1e-9);
+        assert_ne!(r.output.flags & MotorCommand::FLAG_CLAMPED, 0);
+        let mut b = act(ActuatorConfig {
+            out_of_range: OutOfRange::Reject,
+            ..Default::default()
+        });
+        b.command(&[0.0; 5], 5, 0);
+        let r = b.command(&[0.0, 0.0, 0.0, 20.0, -20.0], 5, 1000 * MS);
+        assert!(matches!(r.rejection, Some(Rejection::OutOfRange { joint: 5, .. })));
     }
 
     #[test]

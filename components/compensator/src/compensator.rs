@@ -417,7 +417,7 @@ impl Compensator {
                     if limits {
                         let mut a = [0.0f64; N_JOINTS];
                         a.copy_from_slice(&qv[..N_JOINTS]);
-                        qv[..N_JOINTS].copy_from_slice(&robot.clamp_to_limits(&a));
+                        qv[..N_JOINTS].copy_from_slice(&robot.clamp_command_to_limits(&a));
                     }
                 };
                 let fwd = self.fwd.as_mut().expect("set_mode checked");
@@ -453,7 +453,7 @@ impl Compensator {
         if self.joint_limits {
             let mut a = [0.0f64; N_JOINTS];
             a.copy_from_slice(&cmd[..N_JOINTS]);
-            let clamped = self.robot.clamp_to_limits(&a);
+            let clamped = self.robot.clamp_command_to_limits(&a);
             if clamped != a {
                 out.joint_limited = true;
             }

@@ -7,7 +7,7 @@
 pub mod metrics;
 pub mod report;
 
-use bowden_interfaces::JointEstimate;
+use bowden_interfaces::{CompensationMode, JointEstimate};
 use bowden_kinematics::{JointsDeg, N_JOINTS};
 use bowden_runtime::config::{Mode, Overrides, PipelineConfig};
 use bowden_runtime::launch::LaunchOptions;
@@ -42,6 +42,10 @@ pub struct PointRecord {
     pub q_est_deg: Option<JointsDeg>,
     /// The estimator's end-effector pose in the base frame: position mm and quaternion w, x, y, z.
     pub ee_est: Option<([f64; 3], [f64; 4])>,
+    /// The forward model's prediction for the command sent (absent in `uncalibrated` mode and
+    /// without a forward model): against `q_true_deg` it separates model error from what
+    /// the refinement left.
+    pub q_predicted_deg: Option<JointsDeg>,
     pub refine_iterations: u32,
 }
 
@@ -295,6 +299,8 @@ pub fn run_trajectory(
                 q_true_deg: take(&state.q_phy_deg),
                 q_est_deg: q_est,
                 ee_est,
+                q_predicted_deg: (cmd.mode != CompensationMode::Uncalibrated as u32)
+                    .then(|| take(&cmd.q_predicted_deg)),
                 refine_iterations: cmd.iterations,
             });
             on_point();

@@ -59,9 +59,24 @@ pub struct ForcepsConfig {
 pub struct LimitsConfig {
     pub q_min_deg: [f64; N_JOINTS],
     pub q_max_deg: [f64; N_JOINTS],
-    /// Smallest jaw opening q5 − q4 (the jaws cannot pass through each other). Default 0.
+    /// Smallest physical jaw opening q5 − q4 (the jaws cannot pass through each other).
+    /// Default 0.
     #[serde(default)]
     pub min_jaw_opening_deg: f64,
+    /// Smallest *commanded* jaw opening q5_cmd − q4_cmd. A command is a drive position, not a
+    /// jaw position: the cables' dead band keeps the physical jaws several degrees behind it,
+    /// so a compensator must be able to command the jaws past each other (as a grasper does
+    /// to grip), while contact stops the physical jaws at `min_jaw_opening_deg`. This bounds
+    /// how far (the grip the drive may build). Default: `min_jaw_opening_deg` (no overlap).
+    #[serde(default)]
+    pub min_jaw_command_opening_deg: Option<f64>,
+}
+
+impl LimitsConfig {
+    /// The commanded-opening bound in force (see `min_jaw_command_opening_deg`).
+    pub fn jaw_command_opening_min_deg(&self) -> f64 {
+        self.min_jaw_command_opening_deg.unwrap_or(self.min_jaw_opening_deg)
+    }
 }
 
 /// One actuation cable: which joint it drives and where it runs through the modules.
@@ -184,6 +199,18 @@ impl RobotConfig {
         }
         if !self.limits.min_jaw_opening_deg.is_finite() {
             return Err(bad("limits.min_jaw_opening_deg", "must be finite".into()));
+        }
+        if let Some(c) = self.limits.min_jaw_command_opening_deg {
+            if !c.is_finite() || c > self.limits.min_jaw_opening_deg {
+                return Err(bad(
+                    "limits.min_jaw_command_opening_deg",
+                    format!(
+                        "{c} deg: must be finite and at most min_jaw_opening_deg = {} deg \
+                         (a command may overlap the jaws, the jaws themselves may not)",
+                        self.limits.min_jaw_opening_deg
+                    ),
+                ));
+            }
         }
         if self.cables.len() != 2 * N_JOINTS {
             return Err(bad(

@@ -80,8 +80,18 @@ impl Robot {
         &self.cables
     }
 
-    /// Checks a joint vector against finiteness, joint limits and jaw crossing.
+    /// Checks a physical joint vector against finiteness, joint limits and jaw crossing.
     pub fn check_limits(&self, q_deg: &JointsDeg) -> Result<(), LimitError> {
+        self.check_with_opening(q_deg, self.config.limits.min_jaw_opening_deg)
+    }
+
+    /// Checks a joint *command* (a drive position): the joint ranges as [`Self::check_limits`],
+    /// the jaw opening against the commanded bound `min_jaw_command_opening_deg`.
+    pub fn check_command_limits(&self, q_cmd_deg: &JointsDeg) -> Result<(), LimitError> {
+        self.check_with_opening(q_cmd_deg, self.config.limits.jaw_command_opening_min_deg())
+    }
+
+    fn check_with_opening(&self, q_deg: &JointsDeg, min_opening_deg: f64) -> Result<(), LimitError> {
         let lim = &self.config.limits;
         for (j, &v) in q_deg.iter().enumerate() {
             if !v.is_finite() {
@@ -100,26 +110,35 @@ impl Robot {
             }
         }
         let opening = q_deg[4] - q_deg[3];
-        if opening < lim.min_jaw_opening_deg {
+        if opening < min_opening_deg {
             return Err(LimitError::JawsCross {
                 opening_deg: opening,
-                min_deg: lim.min_jaw_opening_deg,
+                min_deg: min_opening_deg,
             });
         }
         Ok(())
     }
 
-    /// Clamps a joint vector into the limits (and opens crossed jaws symmetrically).
+    /// Clamps a physical joint vector into the limits (and opens crossed jaws symmetrically).
     pub fn clamp_to_limits(&self, q_deg: &JointsDeg) -> JointsDeg {
+        self.clamp_with_opening(q_deg, self.config.limits.min_jaw_opening_deg)
+    }
+
+    /// Clamps a joint command into the command limits (see [`Self::check_command_limits`]).
+    pub fn clamp_command_to_limits(&self, q_cmd_deg: &JointsDeg) -> JointsDeg {
+        self.clamp_with_opening(q_cmd_deg, self.config.limits.jaw_command_opening_min_deg())
+    }
+
+    fn clamp_with_opening(&self, q_deg: &JointsDeg, min_opening_deg: f64) -> JointsDeg {
         let lim = &self.config.limits;
         let mut q = *q_deg;
         for ((v, lo), hi) in q.iter_mut().zip(&lim.q_min_deg).zip(&lim.q_max_deg) {
             *v = v.clamp(*lo, *hi);
         }
         let opening = q[4] - q[3];
-        if opening < lim.min_jaw_opening_deg {
+        if opening < min_opening_deg {
             let mid = 0.5 * (q[3] + q[4]);
-            let half = 0.5 * lim.min_jaw_opening_deg;
+            let half = 0.5 * min_opening_deg;
             q[3] = (mid - half).clamp(lim.q_min_deg[3], lim.q_max_deg[3]);
             q[4] = (mid + half).clamp(lim.q_min_deg[4], lim.q_max_deg[4]);
         }

@@ -368,3 +368,39 @@ fn position_ik_with_fixed_yaw_recovers_the_configuration() {
     let far = Point3::new(400.0, 0.0, 0.0);
     assert!(r.ik_position(&far, 0.0, [0.0; 3], &opts).is_err());
 }
+
+#[test]
+fn commands_may_overlap_the_jaws_by_the_command_bound_only() {
+    let text = include_str!("../../../configs/robot.toml");
+    let p = std::path::Path::new("robot.toml");
+    let with = |line: &str| {
+        let t = text.replace("min_jaw_command_opening_deg = -30.0", line);
+        bowden_kinematics::RobotConfig::parse(&t, p).map(Robot::new)
+    };
+    let r = with("min_jaw_command_opening_deg = -20.0").unwrap();
+    let crossed = [0.0, 0.0, 0.0, 10.0, -5.0]; // opening −15°
+    assert!(r.check_limits(&crossed).is_err(), "the jaws themselves may not cross");
+    assert!(r.check_command_limits(&crossed).is_ok(), "a command may, down to −20°");
+    let e = r
+        .check_command_limits(&[0.0, 0.0, 0.0, 15.0, -10.0])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("-25") && e.contains("-20"), "{e}");
+    // Clamping opens a command symmetrically to the command bound, a configuration to 0.
+    let c = r.clamp_command_to_limits(&[0.0, 0.0, 0.0, 15.0, -15.0]);
+    assert!(
+        (c[4] - c[3] + 20.0).abs() < 1e-12 && (c[3] + c[4]).abs() < 1e-12,
+        "{c:?}"
+    );
+    let c = r.clamp_to_limits(&[0.0, 0.0, 0.0, 15.0, -15.0]);
+    assert!((c[4] - c[3]).abs() < 1e-12, "{c:?}");
+    assert_eq!(r.clamp_command_to_limits(&crossed), crossed);
+    // Without the line a command obeys the physical bound (no overlap).
+    let r = with("").unwrap();
+    assert!(r.check_command_limits(&crossed).is_err());
+    // A command bound above the physical one would forbid configurations the jaws can take.
+    let e = with("min_jaw_command_opening_deg = 5.0").err().unwrap().to_string();
+    assert!(e.contains("min_jaw_command_opening_deg"), "{e}");
+    let e = with("min_jaw_command_opening_deg = nan").err().unwrap().to_string();
+    assert!(e.contains("min_jaw_command_opening_deg"), "{e}");
+}

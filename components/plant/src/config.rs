@@ -108,6 +108,19 @@ pub struct VariationConfig {
     /// Relative standard deviation (truncated at ±3σ) applied to each cable's stiffness,
     /// pre-tension and sheath wrap and to each joint's stiffness.
     pub relative_sd: f64,
+    /// Which manufactured unit this file describes: the seed of its variation. A robot is one
+    /// unit: its dataset is collected on it and its controller evaluated on it, whatever the
+    /// run's seed (which then varies only the noise). Absent: every run's seed picks its own
+    /// unit (a different robot each run).
+    #[serde(default)]
+    pub unit: Option<u64>,
+}
+
+impl VariationConfig {
+    /// The unit a run with seed `run_seed` simulates.
+    pub fn unit_for_run(&self, run_seed: u64) -> u64 {
+        self.unit.unwrap_or(run_seed)
+    }
 }
 
 /// Checks on incoming cable commands.

@@ -73,3 +73,24 @@ fn clones_evolve_identically() {
         assert_eq!(state_bytes(&a), state_bytes(&b));
     }
 }
+
+/// A plant file names its manufactured unit: runs of any seed simulate that unit; without it
+/// the run's seed picks the unit. The shipped robots are units (their models were trained on
+/// them), and a malformed unit is refused with the file and field named.
+#[test]
+fn the_plant_file_names_its_unit() {
+    let shipped = PlantConfig::paper_default();
+    assert_eq!(shipped.variation.unit, Some(2026));
+    assert_eq!(shipped.variation.unit_for_run(1), 2026);
+    assert_eq!(shipped.variation.unit_for_run(99), 2026);
+    let text = include_str!("../../../configs/plant.toml");
+    let p = std::path::Path::new("plant.toml");
+    let free = PlantConfig::parse(&text.replace("unit = 2026", ""), p).unwrap();
+    assert_eq!(free.variation.unit_for_run(7), 7);
+    let e = PlantConfig::parse(&text.replace("unit = 2026", "unit = -4"), p)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("plant.toml") && e.contains("unit"), "{e}");
+    let robot2 = PlantConfig::parse(include_str!("../../../configs/plant-robot2.toml"), p).unwrap();
+    assert_eq!(robot2.variation.unit, Some(79));
+}
