@@ -1,6 +1,6 @@
 //! Every controller config shipped in `configs/` loads with the models it names: the contract is
 //! accepted, both models run on the exact incremental evaluator (checked against tract at load),
-//! and a short compensated path gives finite commands inside the joint limits. A config pointing
+//! and a short compensated path gives finite commands inside the command limits. A config pointing
 //! at a missing or mismatched model fails here, not in a user's first `bowden evaluate`.
 
 use bowden_compensator::{Compensator, ControllerConfig, Mode, StepOutput};
@@ -32,8 +32,9 @@ fn shipped_controller_configs_load_their_models_and_compensate() {
                 comp.step(&q, &mut out)
                     .unwrap_or_else(|e| panic!("{name} {mode:?} step {k}: {e}"));
                 assert!(out.q_cmd_deg[..5].iter().all(|v| v.is_finite()), "{name} {mode:?}");
+                // Command limits: the jaws may be commanded past each other, down to the bound.
                 robot
-                    .check_limits(&out.q_cmd_deg[..5].try_into().unwrap())
+                    .check_command_limits(&out.q_cmd_deg[..5].try_into().unwrap())
                     .unwrap_or_else(|e| panic!("{name} {mode:?} step {k}: {e}"));
             }
         }
