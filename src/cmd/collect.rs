@@ -164,12 +164,9 @@ fn collect(a: CollectArgs) -> Result<()> {
             .as_ref()
             .and_then(|p| std::fs::read_to_string(p).ok())
             .unwrap_or_default();
-    let plant_unit = match &a.plant {
-        Some(f) => bowden_plant::PlantConfig::load(f)?,
-        None => bowden_plant::PlantConfig::paper_default(),
-    }
-    .variation
-    .unit_for_run(a.seed);
+    let plant_unit = bowden_plant::PlantConfig::load_or_shipped(a.plant.as_deref())?
+        .variation
+        .unit_for_run(a.seed);
     let provenance = serde_json::json!({
         "command": std::env::args().collect::<Vec<_>>(),
         "pipeline": pipeline.display().to_string(),

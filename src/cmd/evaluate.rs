@@ -210,10 +210,7 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
     }
     bar.finish_and_clear();
     let summary = summarise(&robot, &runs);
-    let plant_cfg = match &a.plant {
-        Some(f) => bowden_plant::PlantConfig::load(f)?,
-        None => bowden_plant::PlantConfig::paper_default(),
-    };
+    let plant_cfg = bowden_plant::PlantConfig::load_or_shipped(a.plant.as_deref())?;
     let plant_name = a
         .plant
         .as_ref()

@@ -66,10 +66,7 @@ fn run_characterize(a: CharacterizeArgs) -> Result<()> {
         Some(p) => Robot::load(p).context("loading the robot file (--robot)")?,
         None => Robot::paper_default(),
     };
-    let config = match &a.config {
-        Some(p) => PlantConfig::load(p).context("loading the plant file (--config)")?,
-        None => PlantConfig::paper_default(),
-    };
+    let config = PlantConfig::load_or_shipped(a.config.as_deref()).context("loading the plant file (--config)")?;
     anyhow::ensure!(
         a.samples >= 2,
         "--samples {}: need at least 2 random configurations",

@@ -158,6 +158,11 @@ impl PlantConfig {
         Self::parse(&text, path)
     }
 
+    /// `path` when given, else the shipped plant ([`Self::paper_default`]).
+    pub fn load_or_shipped(path: Option<&Path>) -> Result<Self, PlantConfigError> {
+        path.map_or_else(|| Ok(Self::paper_default()), Self::load)
+    }
+
     /// The plant the repository ships (`configs/plant.toml`, embedded at build time).
     pub fn paper_default() -> Self {
         Self::parse(
