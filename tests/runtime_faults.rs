@@ -303,27 +303,42 @@ fn ctrl_c_stops_every_process_cleanly() {
 
 #[test]
 fn a_bad_node_parameter_fails_start_up_clearly_and_cleanly() {
-    let dir = tempfile::tempdir().unwrap();
-    let (p, _guard_p) = guarded_prefix("badp");
-    let cfg = write_config(
-        dir.path(),
-        "chain.toml",
-        &control_chain(&p, "never").replace("stale_after_ms = 20.0", "stale_after_ms = -1.0"),
-    );
-    let out = bowden()
-        .args(["run", cfg.to_str().unwrap(), "--ticks", "10"])
-        .output()
-        .unwrap();
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
-    // The child names the file, the stage and the field; the launcher names the process.
-    assert!(
-        err.contains("chain.toml") && err.contains("`actuator`") && err.contains("stale_after_ms"),
-        "{err}"
-    );
-    assert!(
-        err.contains("process `actuator` exited during start-up (exit code 1)"),
-        "{err}"
-    );
-    assert_clean(&p);
+    // (what is replaced, by what, the stage, the field named in the error)
+    let cases = [
+        (
+            "stale_after_ms = 20.0",
+            "stale_after_ms = -1.0",
+            "actuator",
+            "stale_after_ms",
+        ),
+        (
+            "name = \"plant\"\n[node.params]",
+            "name = \"plant\"\n[node.params]\nunit = \"soon\"",
+            "plant",
+            "unit",
+        ),
+    ];
+    for (i, (from, to, stage, field)) in cases.into_iter().enumerate() {
+        let dir = tempfile::tempdir().unwrap();
+        let (p, _guard_p) = guarded_prefix(&format!("badp{i}"));
+        let text = control_chain(&p, "never");
+        assert!(text.contains(from), "{from}");
+        let cfg = write_config(dir.path(), "chain.toml", &text.replace(from, to));
+        let out = bowden()
+            .args(["run", cfg.to_str().unwrap(), "--ticks", "10"])
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        let err = String::from_utf8_lossy(&out.stderr);
+        // The child names the file, the stage and the field; the launcher names the process.
+        assert!(
+            err.contains("chain.toml") && err.contains(&format!("`{stage}`")) && err.contains(field),
+            "{err}"
+        );
+        assert!(
+            err.contains(&format!("process `{stage}` exited during start-up (exit code 1)")),
+            "{err}"
+        );
+        assert_clean(&p);
+    }
 }

@@ -24,7 +24,10 @@ struct Params {
 }
 
 #[derive(Debug, Deserialize)]
-#[serde(untagged)]
+#[serde(
+    untagged,
+    expecting = "expected a unit number (a non-negative integer) or \"run-seed\""
+)]
 enum UnitChoice {
     Number(u64),
     Named(UnitName),
