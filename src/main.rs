@@ -34,6 +34,8 @@ enum Command {
     Collect(cmd::collect::Command),
     #[command(flatten)]
     Evaluate(cmd::evaluate::Command),
+    #[command(flatten)]
+    Tune(cmd::tune::Command),
     /// Latency and throughput benchmarks printing percentiles.
     Bench {
         #[command(subcommand)]
@@ -59,6 +61,7 @@ fn main() -> std::process::ExitCode {
         Command::Learning(c) => cmd::learning::run(c),
         Command::Collect(c) => cmd::collect::run(c),
         Command::Evaluate(c) => cmd::evaluate::run(c),
+        Command::Tune(c) => cmd::tune::run(c),
         Command::Bench { what } => cmd::bench::run(what),
     };
     match result {

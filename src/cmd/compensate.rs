@@ -18,7 +18,7 @@ pub enum Command {
 /// Model and config options shared by `compensate` and `bench compensate`.
 #[derive(Args, Debug, Clone)]
 pub struct ModelArgs {
-    /// Forward model (ONNX, contract of DESIGN.md §5); default: the config's `model_fwd`.
+    /// Forward model (ONNX, contract of docs/architecture.md §5); default: the config's `model_fwd`.
     #[arg(long)]
     model_fwd: Option<PathBuf>,
     /// Inverse model; default: the config's `model_inv`.

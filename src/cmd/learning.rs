@@ -22,6 +22,22 @@ pub enum Command {
     /// Import an external log (CSV with named columns, or a pair of .npy arrays) as a
     /// bowden dataset directory.
     Import(ImportArgs),
+    /// Record the support of a model's training data (command range, largest step, largest
+    /// command-to-physical gap) in its metadata, for models trained before `train` wrote it.
+    /// Only metadata changes; the graph and weights stay byte for byte.
+    StampSupport(StampSupportArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct StampSupportArgs {
+    /// Dataset directory the models were trained on.
+    #[arg(long)]
+    data: PathBuf,
+    /// Model files to stamp (their direction and L say which windows are theirs).
+    #[arg(required = true)]
+    models: Vec<PathBuf>,
+    #[command(flatten)]
+    split: SplitArgs,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -300,6 +316,26 @@ pub fn run(c: Command) -> Result<()> {
                 summary.runs,
                 summary.reused
             );
+            Ok(())
+        }
+        Command::StampSupport(a) => {
+            let (split, phy) = a.split.parse()?;
+            let (ds, _) = bowden_learning::Dataset::read_dir(&a.data).with_context(|| format!("--data {}", a.data.display()))?;
+            for m in &a.models {
+                let file = bowden_learning::ModelFile::load(m)?;
+                let w = bowden_learning::WindowSet::build(&ds, file.direction, file.spec.seq_len, split, phy)
+                    .with_context(|| format!("{}: windows of {}", m.display(), a.data.display()))?;
+                let sup = bowden_learning::DataSupport::from_windows(&w);
+                bowden_learning::support::stamp_file(m, &sup)?;
+                println!(
+                    "{}: command range {:?}..{:?} deg, largest step {:?}, largest gap {:?}",
+                    m.display(),
+                    sup.cmd_min_deg.iter().map(|v| v.round()).collect::<Vec<_>>(),
+                    sup.cmd_max_deg.iter().map(|v| v.round()).collect::<Vec<_>>(),
+                    sup.cmd_step_max_deg.iter().map(|v| (v * 10.0).round() / 10.0).collect::<Vec<_>>(),
+                    sup.gap_max_deg.iter().map(|v| (v * 10.0).round() / 10.0).collect::<Vec<_>>()
+                );
+            }
             Ok(())
         }
         Command::Import(a) => {

@@ -10,5 +10,7 @@ pub mod kin;
 pub mod learning;
 pub mod plant;
 pub mod runtime;
+pub mod transfer;
+pub mod tune;
 
 // Node glue for `bowden node ...` lives in `crate::nodes`.

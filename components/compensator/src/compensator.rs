@@ -1,7 +1,7 @@
 //! The compensation step: q_desired(t) → q_cmd(t), bounded in time and allocation-free.
 
-use crate::config::{ConfigError, ControllerConfig, EvaluatorChoice, Mode};
-use crate::contract::{Direction, MAX_JOINTS};
+use crate::config::{ConfigError, ControllerConfig, EvaluatorChoice, Mode, SafetyConfig};
+use crate::contract::{Direction, Support, MAX_JOINTS};
 use crate::history::History;
 use crate::model::{Evaluator, LoadOptions, Model, ModelError};
 use crate::refine::{newton_refine, paper_refine, NewtonParams, PaperParams, RefineResult, StopReason, WindowModel};
@@ -62,6 +62,34 @@ pub struct StepOutput {
     pub joint_limited: bool,
     /// History entries appended after this step (0 most cycles at 1 kHz).
     pub history_appended: u32,
+    /// Which candidate the safe refinement sent (`Refined` when `never_worse` is off).
+    pub chosen: Chosen,
+    /// A safety bound (support, step or drift guard) moved a candidate this step.
+    pub safety_limited: bool,
+}
+
+/// The candidate a step sent (`[safety] never_worse`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Chosen {
+    /// The refinement's result (always, when `never_worse` is off or no model runs).
+    #[default]
+    Refined,
+    /// The refinement's start (the inverse model's estimate): the model rated the result worse.
+    Start,
+    /// The target unchanged: the model rated both worse than sending it as it is.
+    Desired,
+}
+
+/// What the safe refinement did since the compensator was built (or reset).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SafetyCounts {
+    pub steps: u64,
+    /// Steps where a bound moved a candidate.
+    pub limited: u64,
+    /// Steps that sent the refinement's start instead of its result.
+    pub start_chosen: u64,
+    /// Steps that sent the target unchanged.
+    pub desired_chosen: u64,
 }
 
 impl Default for StepOutput {
@@ -82,6 +110,8 @@ impl Default for StepOutput {
             rate_limited: false,
             joint_limited: false,
             history_appended: 0,
+            chosen: Chosen::Refined,
+            safety_limited: false,
         }
     }
 }
@@ -128,6 +158,9 @@ pub struct Compensator {
     last_sent: [f64; MAX_JOINTS],
     has_last: bool,
     rejected: u64,
+    safety: SafetyConfig,
+    support: Option<Support>,
+    safety_counts: SafetyCounts,
     fwd_path: Option<String>,
     inv_path: Option<String>,
 }
@@ -224,6 +257,7 @@ impl Compensator {
         let fwd_l = fwd.as_ref().map(|m| m.seq_len()).unwrap_or(1);
         let inv_l = inv.as_ref().map(|m| m.seq_len()).unwrap_or(1);
         let rows = fwd_l.max(inv_l) - 1;
+        let support = fwd.as_ref().and_then(|m| m.support().copied());
         let mut c = Self {
             mode: Mode::Uncalibrated,
             j,
@@ -246,6 +280,9 @@ impl Compensator {
             last_sent: [0.0; MAX_JOINTS],
             has_last: false,
             rejected: 0,
+            safety: cfg.safety.clone(),
+            support,
+            safety_counts: SafetyCounts::default(),
         };
         c.set_mode(cfg.mode)?;
         Ok(c)
@@ -301,6 +338,65 @@ impl Compensator {
     pub fn history(&self) -> &History {
         &self.history
     }
+    /// The training data's support the safe refinement uses (the forward model's metadata);
+    /// `None` when the model file records none (then only the joint limits bound candidates).
+    pub fn support(&self) -> Option<&Support> {
+        self.support.as_ref()
+    }
+    pub fn safety(&self) -> &SafetyConfig {
+        &self.safety
+    }
+    pub fn safety_counts(&self) -> SafetyCounts {
+        self.safety_counts
+    }
+
+    /// The per-joint interval every candidate of this step must lie in: the training data's
+    /// command range, a step from the forward model's newest history entry no larger than
+    /// the data's largest, and the drift guard around `q_des` (docs/architecture.md, "Safe
+    /// refinement"). Where the bounds do not meet (a target outside what the data covers),
+    /// the joint is pinned to the target: the model knows nothing there.
+    fn admissible(&self, q_des: &[f64], lo: &mut [f64], hi: &mut [f64]) {
+        let j = self.j;
+        for k in 0..j {
+            lo[k] = f64::NEG_INFINITY;
+            hi[k] = f64::INFINITY;
+        }
+        let Some(sup) = &self.support else {
+            return;
+        };
+        let sf = &self.safety;
+        if sf.support {
+            let s = sf.support_scale;
+            let newest = (self.fwd_l > 1).then(|| {
+                let tail = self.history.sent_tail(self.fwd_l - 1);
+                &tail[tail.len() - j..]
+            });
+            for k in 0..j {
+                let c = 0.5 * (sup.cmd_min_deg[k] + sup.cmd_max_deg[k]);
+                let h = 0.5 * (sup.cmd_max_deg[k] - sup.cmd_min_deg[k]) * s;
+                lo[k] = lo[k].max(c - h);
+                hi[k] = hi[k].min(c + h);
+                if let Some(prev) = newest.filter(|_| sf.step_scale > 0.0) {
+                    let d = sup.cmd_step_max_deg[k] * sf.step_scale;
+                    lo[k] = lo[k].max(prev[k] - d);
+                    hi[k] = hi[k].min(prev[k] + d);
+                }
+            }
+        }
+        if sf.correction_scale > 0.0 {
+            for k in 0..j {
+                let g = sup.gap_max_deg[k] * sf.correction_scale;
+                lo[k] = lo[k].max(q_des[k] - g);
+                hi[k] = hi[k].min(q_des[k] + g);
+            }
+        }
+        for k in 0..j {
+            if lo[k] > hi[k] {
+                lo[k] = q_des[k];
+                hi[k] = q_des[k];
+            }
+        }
+    }
 
     /// Forgets the histories (back to zero padding) and the last command.
     pub fn reset(&mut self) {
@@ -309,6 +405,7 @@ impl Compensator {
         self.inv_prefix = Prefix::Full;
         self.has_last = false;
         self.last_sent = [0.0; MAX_JOINTS];
+        self.safety_counts = SafetyCounts::default();
     }
 
     /// Does now the window-prefix work the next [`Self::step`] would otherwise start with
@@ -368,6 +465,8 @@ impl Compensator {
             out.rate_limited = false;
             out.joint_limited = false;
             out.history_appended = 0;
+            out.chosen = Chosen::Refined;
+            out.safety_limited = false;
             out.elapsed_ns = t0.elapsed().as_nanos() as u64;
             return Err(e);
         }
@@ -381,6 +480,26 @@ impl Compensator {
         let mut q = [0.0f64; MAX_JOINTS];
         let mut pred = [0.0f64; MAX_JOINTS];
         let mut res = RefineResult::default();
+        // The admissible set of this step's candidates (all ±∞ without support or safety).
+        let mut lo = [0.0f64; MAX_JOINTS];
+        let mut hi = [0.0f64; MAX_JOINTS];
+        self.admissible(q_des, &mut lo[..j], &mut hi[..j]);
+        let mut limited = false;
+        let robot = &self.robot;
+        let limits = self.joint_limits;
+        let mut project = |qv: &mut [f64]| {
+            for k in 0..qv.len() {
+                let v = qv[k].clamp(lo[k], hi[k]);
+                limited |= v != qv[k];
+                qv[k] = v;
+            }
+            if limits {
+                let mut a = [0.0f64; N_JOINTS];
+                a.copy_from_slice(&qv[..N_JOINTS]);
+                qv[..N_JOINTS].copy_from_slice(&robot.clamp_command_to_limits(&a));
+            }
+        };
+        let mut start = [0.0f64; MAX_JOINTS];
         match self.mode {
             Mode::Uncalibrated => q[..j].copy_from_slice(q_des),
             Mode::Paper => {
@@ -390,6 +509,8 @@ impl Compensator {
                 if q[..j].iter().any(|v| !v.is_finite()) {
                     q[..j].copy_from_slice(q_des);
                 }
+                project(&mut q[..j]);
+                start = q;
                 let fwd = self.fwd.as_mut().expect("set_mode checked");
                 res = paper_refine(
                     fwd,
@@ -397,6 +518,7 @@ impl Compensator {
                     &mut q[..j],
                     &self.paper,
                     &mut pred[..j],
+                    &mut project,
                     &mut out_of_time,
                     &mut |_, _, _| {},
                 );
@@ -411,15 +533,8 @@ impl Compensator {
                     }
                     _ => q[..j].copy_from_slice(q_des),
                 }
-                let robot = &self.robot;
-                let limits = self.joint_limits;
-                let mut project = |qv: &mut [f64]| {
-                    if limits {
-                        let mut a = [0.0f64; N_JOINTS];
-                        a.copy_from_slice(&qv[..N_JOINTS]);
-                        qv[..N_JOINTS].copy_from_slice(&robot.clamp_command_to_limits(&a));
-                    }
-                };
+                project(&mut q[..j]);
+                start = q;
                 let fwd = self.fwd.as_mut().expect("set_mode checked");
                 res = newton_refine(
                     fwd,
@@ -432,6 +547,65 @@ impl Compensator {
                 );
             }
         }
+        // Never worse, by the model's own rating: the result must beat where the refinement
+        // started, and sending the target unchanged.
+        let mut chosen = Chosen::Refined;
+        if self.safety.never_worse && self.mode != Mode::Uncalibrated {
+            if let Some(fwd) = &mut self.fwd {
+                let cost = |p: &[f64]| -> f64 {
+                    let c: f64 = (0..j).map(|k| (p[k] - q_des[k]) * (p[k] - q_des[k])).sum();
+                    if c.is_nan() {
+                        f64::INFINITY
+                    } else {
+                        c
+                    }
+                };
+                let mut p = [0.0f64; MAX_JOINTS];
+                if !res.pred_at_q {
+                    fwd.eval(&q[..j], &mut pred[..j]);
+                    res.evals += 1;
+                    res.pred_at_q = true;
+                }
+                let mut best = cost(&pred[..j]);
+                if q[..j] != start[..j] {
+                    fwd.eval(&start[..j], &mut p[..j]);
+                    res.evals += 1;
+                    let c = cost(&p[..j]);
+                    if c < best {
+                        best = c;
+                        q = start;
+                        pred = p;
+                        chosen = Chosen::Start;
+                    }
+                }
+                // The target as the output stage would send it.
+                let mut d = [0.0f64; MAX_JOINTS];
+                d[..j].copy_from_slice(q_des);
+                if self.joint_limits {
+                    let mut a = [0.0f64; N_JOINTS];
+                    a.copy_from_slice(&d[..N_JOINTS]);
+                    d[..N_JOINTS].copy_from_slice(&self.robot.clamp_command_to_limits(&a));
+                }
+                if d[..j] != q[..j] {
+                    fwd.eval(&d[..j], &mut p[..j]);
+                    res.evals += 1;
+                    if cost(&p[..j]) < best {
+                        q = d;
+                        pred = p;
+                        chosen = Chosen::Desired;
+                    }
+                }
+            }
+        }
+        self.safety_counts.steps += 1;
+        self.safety_counts.limited += limited as u64;
+        match chosen {
+            Chosen::Refined => {}
+            Chosen::Start => self.safety_counts.start_chosen += 1,
+            Chosen::Desired => self.safety_counts.desired_chosen += 1,
+        }
+        out.chosen = chosen;
+        out.safety_limited = limited;
         out.q_refined_deg = q;
 
         // Output stage: rate limit against the last command sent, then joint limits.

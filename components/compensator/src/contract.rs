@@ -1,4 +1,4 @@
-//! The model contract (DESIGN.md §5): what an ONNX hysteresis model must look like for bowden
+//! The model contract (docs/architecture.md §5): what an ONNX hysteresis model must look like for bowden
 //! to load it. Writers of model files (the learning crate, PyTorch exporters) and this crate's
 //! loader share these names, so they are defined once, here.
 //!
@@ -37,6 +37,15 @@ pub mod keys {
     pub const UNITS: &str = "units";
     /// TCN block variant, required for `tcn` and `tcn-lstm`: `relu-relu` or `relu-linear`.
     pub const TCN_BLOCK: &str = "tcn_block";
+    /// Optional: the support of the training data, `J` comma-separated degrees each (written
+    /// by `bowden train`; all four or none). The compensator keeps its candidates inside it.
+    /// Per joint: the smallest and largest training command,
+    pub const SUPPORT_CMD_MIN: &str = "support_cmd_min_deg";
+    pub const SUPPORT_CMD_MAX: &str = "support_cmd_max_deg";
+    /// the largest |Δq_cmd| between consecutive training samples (one model step),
+    pub const SUPPORT_CMD_STEP_MAX: &str = "support_cmd_step_max_deg";
+    /// and the 99.9 % quantile of |q_cmd − q_phy| (the largest command-to-physical gap seen).
+    pub const SUPPORT_GAP_MAX: &str = "support_gap_max_deg";
     /// Every key a loader requires for every architecture.
     pub const REQUIRED: [&str; 5] = [DIRECTION, SEQ_LEN, JOINTS, ARCHITECTURE, UNITS];
 }
@@ -116,7 +125,7 @@ string_enum!(
 );
 
 string_enum!(
-    /// Where a TCN residual block has its ReLUs (DESIGN.md §5).
+    /// Where a TCN residual block has its ReLUs (docs/architecture.md §5).
     TcnBlock, keys::TCN_BLOCK, {
         /// ReLU after both convolutions: the paper read literally.
         ReluRelu => "relu-relu",
@@ -186,6 +195,73 @@ impl ModelMetadata {
             architecture,
             tcn_block,
         })
+    }
+}
+
+/// Where the training data lay, per joint, degrees (see [`keys::SUPPORT_CMD_MIN`]). Fixed
+/// arrays: the compensator's step reads it without allocating.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Support {
+    pub joints: usize,
+    pub cmd_min_deg: [f64; MAX_JOINTS],
+    pub cmd_max_deg: [f64; MAX_JOINTS],
+    pub cmd_step_max_deg: [f64; MAX_JOINTS],
+    pub gap_max_deg: [f64; MAX_JOINTS],
+}
+
+impl Support {
+    /// Reads the optional support props: `Ok(None)` when there are none, an error naming the
+    /// key when some are missing or malformed.
+    pub fn from_props<'a>(get: impl Fn(&str) -> Option<&'a str>, joints: usize) -> Result<Option<Self>, ContractError> {
+        let all = [
+            keys::SUPPORT_CMD_MIN,
+            keys::SUPPORT_CMD_MAX,
+            keys::SUPPORT_CMD_STEP_MAX,
+            keys::SUPPORT_GAP_MAX,
+        ];
+        if all.iter().all(|k| get(k).is_none()) {
+            return Ok(None);
+        }
+        let read = |key: &'static str| -> Result<[f64; MAX_JOINTS], ContractError> {
+            let s = get(key).ok_or(ContractError::Missing { key })?;
+            let bad = || ContractError::Invalid {
+                key,
+                value: s.to_string(),
+                expected: "one finite number of degrees per joint, comma-separated",
+            };
+            let mut out = [0.0; MAX_JOINTS];
+            let mut n = 0;
+            for part in s.split(',') {
+                let v: f64 = part.trim().parse().map_err(|_| bad())?;
+                if n >= joints || !v.is_finite() {
+                    return Err(bad());
+                }
+                out[n] = v;
+                n += 1;
+            }
+            if n != joints {
+                return Err(bad());
+            }
+            Ok(out)
+        };
+        let s = Self {
+            joints,
+            cmd_min_deg: read(keys::SUPPORT_CMD_MIN)?,
+            cmd_max_deg: read(keys::SUPPORT_CMD_MAX)?,
+            cmd_step_max_deg: read(keys::SUPPORT_CMD_STEP_MAX)?,
+            gap_max_deg: read(keys::SUPPORT_GAP_MAX)?,
+        };
+        for k in 0..joints {
+            let ok = s.cmd_min_deg[k] <= s.cmd_max_deg[k] && s.cmd_step_max_deg[k] >= 0.0 && s.gap_max_deg[k] >= 0.0;
+            if !ok {
+                return Err(ContractError::Invalid {
+                    key: keys::SUPPORT_CMD_MIN,
+                    value: format!("joint {}: min {} max {}", k + 1, s.cmd_min_deg[k], s.cmd_max_deg[k]),
+                    expected: "min ≤ max, steps and gaps ≥ 0",
+                });
+            }
+        }
+        Ok(Some(s))
     }
 }
 

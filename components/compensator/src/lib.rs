@@ -30,8 +30,8 @@ pub mod offline;
 mod recognise;
 pub mod refine;
 
-pub use compensator::{Compensator, CompensatorError, StepError, StepOutput};
-pub use config::{ConfigError, ControllerConfig, EvaluatorChoice, Mode};
+pub use compensator::{Chosen, Compensator, CompensatorError, SafetyCounts, StepError, StepOutput};
+pub use config::{ConfigError, ControllerConfig, EvaluatorChoice, Mode, SafetyConfig};
 pub use history::{History, HistoryRule};
 pub use model::{Evaluator, LoadOptions, Model, ModelError, TractEvaluator};
 pub use net::{IncrementalNet, Net, NetSummary};

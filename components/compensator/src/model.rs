@@ -1,7 +1,7 @@
 //! Loading contract-following ONNX models (tract-onnx), checking them, and building their
 //! evaluators: the exact incremental one when the graph is recognised, tract otherwise.
 
-use crate::contract::{self, Architecture, ContractError, ModelMetadata, TcnBlock};
+use crate::contract::{self, Architecture, ContractError, ModelMetadata, Support, TcnBlock};
 use crate::net::{IncrementalNet, Net, NetSummary};
 use crate::recognise::{recognise, ProtoLstm};
 use crate::refine::WindowModel;
@@ -110,6 +110,7 @@ impl Default for LoadOptions {
 pub struct Model {
     path: String,
     meta: ModelMetadata,
+    support: Option<Support>,
     producer: String,
     plan: Arc<TypedSimplePlan>,
     net: Option<Arc<Net>>,
@@ -171,6 +172,20 @@ impl Model {
             path: path.clone(),
             source,
         })?;
+        let support = Support::from_props(
+            |k| {
+                proto
+                    .metadata_props
+                    .iter()
+                    .find(|p| p.key == k)
+                    .map(|p| p.value.as_str())
+            },
+            meta.joints,
+        )
+        .map_err(|source| ModelError::Metadata {
+            path: path.clone(),
+            source,
+        })?;
         check_interface(&path, graph, &meta)?;
         check_finite(&path, graph)?;
         let lstms = proto_lstms(graph);
@@ -216,6 +231,7 @@ impl Model {
         let mut model = Model {
             path,
             meta,
+            support,
             producer: format!("{} {}", proto.producer_name, proto.producer_version)
                 .trim()
                 .to_string(),
@@ -319,6 +335,10 @@ impl Model {
     }
     pub fn metadata(&self) -> &ModelMetadata {
         &self.meta
+    }
+    /// The support of the training data, when the file records it (`bowden train` does).
+    pub fn support(&self) -> Option<&Support> {
+        self.support.as_ref()
     }
     pub fn seq_len(&self) -> usize {
         self.meta.seq_len

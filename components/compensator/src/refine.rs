@@ -161,15 +161,18 @@ fn max_abs(v: &[f64]) -> f64 {
 }
 
 /// Algorithm 1, lines 2–6. `q` holds line 1's result (the inverse model's estimate) on entry
-/// and q_calibrated on return; `pred` the last forward prediction. `observer(iteration, q,
-/// loss)` sees every iteration before its update (tests use it; the compensator passes a
-/// no-op).
+/// and q_calibrated on return; `pred` the last forward prediction. `project` maps every
+/// candidate into the admissible set before it is evaluated (the safe refinement's support;
+/// a no-op runs the algorithm literally). `observer(iteration, q, loss)` sees every iteration
+/// before its update (tests use it; the compensator passes a no-op).
+#[allow(clippy::too_many_arguments)]
 pub fn paper_refine<M: WindowModel + ?Sized>(
     fwd: &mut M,
     q_desired: &[f64],
     q: &mut [f64],
     p: &PaperParams,
     pred: &mut [f64],
+    project: &mut impl FnMut(&mut [f64]),
     out_of_time: &mut impl FnMut() -> bool,
     observer: &mut impl FnMut(u32, &[f64], &[f64]),
 ) -> RefineResult {
@@ -180,6 +183,7 @@ pub fn paper_refine<M: WindowModel + ?Sized>(
         stop: StopReason::MaxIterations,
         ..Default::default()
     };
+    project(q);
     for it in 1..=p.iterations {
         fwd.eval(q, pred);
         r.evals += 1;
@@ -207,6 +211,7 @@ pub fn paper_refine<M: WindowModel + ?Sized>(
             r.pred_at_q = true;
             return r;
         }
+        project(q);
         if it < p.iterations && out_of_time() {
             r.stop = StopReason::Budget;
             return r;
@@ -478,7 +483,7 @@ mod tests {
             threshold_deg: 0.5,
         };
         let mut seen: Vec<(u32, [f64; 2], [f64; 2])> = Vec::new();
-        let r = paper_refine(&mut toy, &d, &mut q, &p, &mut pred, &mut || false, &mut |it, q, l| {
+        let r = paper_refine(&mut toy, &d, &mut q, &p, &mut pred, &mut |_| {}, &mut || false, &mut |it, q, l| {
             seen.push((it, [q[0], q[1]], [l[0], l[1]]))
         });
         let want = [
@@ -518,6 +523,7 @@ mod tests {
             &mut q,
             &p,
             &mut pred,
+            &mut |_| {},
             &mut || false,
             &mut |_, _, _| {},
         );
@@ -537,6 +543,7 @@ mod tests {
             &mut q,
             &p,
             &mut pred,
+            &mut |_| {},
             &mut || {
                 checks += 1;
                 checks >= 4
@@ -552,6 +559,7 @@ mod tests {
             &mut [0.0, 0.0],
             &p,
             &mut pred,
+            &mut |_| {},
             &mut || false,
             &mut |_, _, _| {},
         );

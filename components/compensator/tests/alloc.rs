@@ -1,7 +1,7 @@
 //! The compensation step allocates nothing: a counting global allocator over many steps of
 //! every mode, with history shifts, interpolated multi-entry appends, resets and rejected
 //! targets, on the TCN fixtures and (newton, forward model only) on the FNN, LSTM and
-//! TCN-LSTM fixtures.
+//! TCN-LSTM fixtures; and with every safeguard of the safe refinement active.
 
 mod common;
 use bowden_compensator::bench::random_trajectory;
@@ -89,6 +89,22 @@ fn step_does_not_allocate() {
                 "{mode}: the models ran ({evals} evaluations)"
             );
         }
+    }
+
+    // Every safeguard active: a forward model with support metadata (support bounds, drift
+    // guard) and never-worse, in both refining modes.
+    for mode in [Mode::Paper, Mode::Newton] {
+        let mut c = cfg.clone();
+        c.mode = mode;
+        c.safety = bowden_compensator::SafetyConfig::on();
+        let fwd = common::supported("tcn_forward_L80_J5_s0");
+        let inv = Model::load(common::fixture("tcn_inverse_L80_J5_s0")).unwrap();
+        let mut comp = Compensator::from_models(&c, &robot, Some(fwd), Some(inv)).unwrap();
+        assert!(comp.support().is_some());
+        let ((evals, _), allocs) = count(|| run_steps(&mut comp, &targets));
+        assert_eq!(allocs, 0, "{mode} with safety: {allocs} allocations");
+        assert!(evals > targets.len() as u64);
+        assert!(comp.safety_counts().limited > 0, "{mode}: the bounds were active");
     }
 
     // The other architectures' incremental evaluators, through newton on the forward model.

@@ -138,18 +138,22 @@ fn bounds_stop_the_loop() {
             assert!(out.iterations <= 1, "{mode}: {} iterations", out.iterations);
         }
     }
-    // Newton's evaluation cap.
-    let mut c = cfg(Mode::Newton);
-    c.newton.tolerance_deg = 1e-12;
-    c.newton.max_evals = 3;
-    let mut comp = Compensator::from_config(&c, &robot).unwrap();
-    for q in &t {
-        comp.step(q, &mut out).unwrap();
-        assert!(out.forward_evals <= 4, "3 in the loop + the prediction at q_cmd");
-        assert!(matches!(
-            out.stop_reason,
-            StopReason::MaxIterations | StopReason::Stalled
-        ));
+    // Newton's evaluation cap: 3 in the loop + the prediction at q_cmd; never-worse adds at
+    // most two ratings (the refinement's start and the target unchanged).
+    for (never_worse, cap) in [(false, 4), (true, 6)] {
+        let mut c = cfg(Mode::Newton);
+        c.newton.tolerance_deg = 1e-12;
+        c.newton.max_evals = 3;
+        c.safety.never_worse = never_worse;
+        let mut comp = Compensator::from_config(&c, &robot).unwrap();
+        for q in &t {
+            comp.step(q, &mut out).unwrap();
+            assert!(out.forward_evals <= cap, "{} evaluations > {cap}", out.forward_evals);
+            assert!(matches!(
+                out.stop_reason,
+                StopReason::MaxIterations | StopReason::Stalled
+            ));
+        }
     }
 }
 
@@ -269,6 +273,7 @@ fn newton_converges_where_paper_mode_does_not() {
             &mut q,
             &paper,
             &mut pred,
+            &mut |_| {},
             &mut || false,
             &mut |_, _, _| {},
         );

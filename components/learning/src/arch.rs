@@ -66,7 +66,7 @@ impl std::str::FromStr for Arch {
     }
 }
 
-/// Where the ReLUs of a TCN residual block sit (DESIGN.md §5).
+/// Where the ReLUs of a TCN residual block sit (docs/architecture.md §5).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize, Default)]
 #[serde(rename_all = "kebab-case")]
 pub enum TcnBlock {

@@ -1,6 +1,6 @@
 //! `bowden-learning`: datasets, the paper's four hysteresis models (FNN, LSTM, TCN,
 //! TCN-LSTM; Park et al. 2024 §IV-C), their training with hand-written fused kernels
-//! (checked against candle's autograd), ONNX export following DESIGN.md §5, and the
+//! (checked against candle's autograd), ONNX export following docs/architecture.md §5, and the
 //! sequence-length sweep (their Fig. 10).
 //!
 //! - [`dataset`]: the CSV + manifest format, import of external CSV / `.npy` logs.
@@ -20,6 +20,7 @@ pub mod kernels;
 pub mod npy;
 pub mod onnx;
 pub mod report;
+pub mod support;
 pub mod sweep;
 pub mod synthetic;
 pub mod train;
@@ -28,6 +29,7 @@ pub mod windows;
 pub use arch::{tcn_num_blocks, Arch, Direction, ModelSpec, TcnBlock};
 pub use dataset::{AngleUnit, Dataset, DatasetError, ImportOptions, Manifest};
 pub use onnx::{ModelFile, OnnxError, TractModel};
+pub use support::DataSupport;
 pub use report::{train_to_files, LearnError, TrainReport};
 pub use train::{train, Backend, TrainConfig, TrainError, TrainOutcome};
 pub use windows::{PhySource, SplitConfig, WindowSet};

@@ -1,4 +1,4 @@
-//! ONNX export (and import) of trained models, following the contract of DESIGN.md §5 and
+//! ONNX export (and import) of trained models, following the contract of docs/architecture.md §5 and
 //! of the PyTorch fixtures: input `q_seq_deg` f32 `[1, L, J]` (degrees, oldest first),
 //! output `q_deg` f32 `[1, J]` (degrees), normalisation inside the graph (`Sub mu_in`,
 //! `Div sd_in` first, `Mul sd_out`, `Add mu_out` last), metadata props `direction`,
@@ -18,6 +18,7 @@ use tract_onnx::pb;
 use tract_onnx::pb::{tensor_shape_proto, type_proto};
 
 use crate::arch::{tcn_dilation, Arch, Direction, ModelSpec, TcnBlock, FNN_HIDDEN, HEAD_HIDDEN, LSTM_HIDDEN};
+use crate::support::DataSupport;
 use crate::windows::Normaliser;
 
 pub const INPUT_NAME: &str = "q_seq_deg";
@@ -57,6 +58,8 @@ pub struct ModelFile {
     pub params: Vec<f32>,
     pub norm_in: Normaliser,
     pub norm_out: Normaliser,
+    /// Where the training data lay (`train` records it; a file from elsewhere may lack it).
+    pub support: Option<DataSupport>,
 }
 
 struct GraphBuilder {
@@ -332,6 +335,11 @@ impl ModelFile {
         if spec.arch.has_tcn() {
             meta.push(("tcn_block", spec.tcn_block.name().to_string()));
         }
+        if let Some(sup) = &self.support {
+            for (k, v) in sup.to_props() {
+                meta.push((k, v));
+            }
+        }
         meta.push((
             "producer_note",
             format!(
@@ -428,6 +436,7 @@ impl ModelFile {
             None => TcnBlock::default(),
         };
         let spec = ModelSpec::new(arch, seq_len, joints, tcn_block);
+        let support = DataSupport::from_props(|k| meta.get(k).copied(), joints).map_err(bad)?;
         let graph = proto.graph.as_ref().ok_or_else(|| bad("no graph".into()))?;
         let inits: HashMap<&str, &pb::TensorProto> = graph.initializer.iter().map(|t| (t.name.as_str(), t)).collect();
         let tensor = |name: &str, want: usize| -> Result<Vec<f32>, OnnxError> {
@@ -527,6 +536,7 @@ impl ModelFile {
             params,
             norm_in,
             norm_out,
+            support,
         })
     }
 }

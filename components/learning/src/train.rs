@@ -432,6 +432,7 @@ pub fn train(data: &WindowSet, cfg: &TrainConfig, progress: Option<&ProgressBar>
             params,
             norm_in: data.norm_in.clone(),
             norm_out: data.norm_out.clone(),
+            support: Some(crate::support::DataSupport::from_windows(data)),
         },
         epochs,
         best_epoch,

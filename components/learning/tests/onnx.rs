@@ -39,6 +39,7 @@ fn random_model(spec: ModelSpec, seed: u64) -> ModelFile {
         params: spec.init_params(seed),
         norm_in: norm(&mut rng),
         norm_out: norm(&mut rng),
+        support: None,
     }
 }
 

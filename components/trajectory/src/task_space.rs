@@ -9,7 +9,7 @@
 //! is then FK of that joint path.
 //!
 //! Sampling: the models were trained on commands 3·√5 deg apart in joint space (eq. 16), so
-//! the joint path is resampled at that arc-length step (DESIGN.md §5): every sample is one
+//! the joint path is resampled at that arc-length step (docs/architecture.md §4): every sample is one
 //! model step, as in the training data.
 
 use bowden_kinematics::ik::IkOptions;

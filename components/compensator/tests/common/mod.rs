@@ -1,7 +1,10 @@
 //! Shared helpers of the compensator's integration tests.
 #![allow(dead_code)]
 
+use bowden_compensator::{LoadOptions, Model, ModelError};
+use prost::Message;
 use std::path::PathBuf;
+use tract_onnx::pb;
 
 /// `tests/fixtures/pytorch/` of the repository (copied from ../shared so tests are
 /// self-contained).
@@ -42,3 +45,42 @@ pub fn pytorch_io(name: &str) -> (Vec<f32>, Vec<f32>) {
     };
     (flat(&v["input_q_seq_deg"]), flat(&v["output_q_deg"]))
 }
+
+/// A fixture with metadata props added (as `bowden train` writes the support).
+pub fn with_props(name: &str, props: &[(&str, &str)]) -> Result<Model, ModelError> {
+    let bytes = std::fs::read(fixture(name)).unwrap();
+    let mut proto = pb::ModelProto::decode(bytes.as_slice()).unwrap();
+    for (k, v) in props {
+        proto.metadata_props.push(pb::StringStringEntryProto {
+            key: k.to_string(),
+            value: v.to_string(),
+        });
+    }
+    Model::from_bytes(
+        &proto.encode_to_vec(),
+        &format!("{name}+support"),
+        None,
+        &LoadOptions::default(),
+    )
+}
+
+/// The support a `with_support` fixture claims: commands within ±RANGE, steps ≤ STEP, gaps ≤ GAP.
+pub const RANGE: f64 = 25.0;
+pub const STEP: f64 = 4.0;
+pub const GAP: f64 = 6.0;
+
+pub fn supported(name: &str) -> Model {
+    let five = |v: f64| vec![format!("{v}"); 5].join(",");
+    let (lo, hi, step, gap) = (five(-RANGE), five(RANGE), five(STEP), five(GAP));
+    with_props(
+        name,
+        &[
+            ("support_cmd_min_deg", &lo),
+            ("support_cmd_max_deg", &hi),
+            ("support_cmd_step_max_deg", &step),
+            ("support_gap_max_deg", &gap),
+        ],
+    )
+    .unwrap()
+}
+
