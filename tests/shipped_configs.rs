@@ -21,6 +21,17 @@ fn shipped_controller_configs_load_their_models_and_compensate() {
             (Some(true), Some(true)),
             "{name}: both models incremental"
         );
+        // Every shipped controller runs the safe refinement, with the forward model's
+        // training-data support recorded in its metadata (else the support and drift bounds
+        // would silently be off).
+        let sf = comp.safety();
+        assert!(sf.support && sf.never_worse && sf.correction_scale > 0.0, "{name}: {sf:?}");
+        let sup = comp
+            .support()
+            .unwrap_or_else(|| panic!("{name}: the forward model records no training-data support"));
+        for k in 0..5 {
+            assert!(sup.cmd_min_deg[k] < sup.cmd_max_deg[k] && sup.cmd_step_max_deg[k] > 0.0 && sup.gap_max_deg[k] > 0.0);
+        }
         for mode in [Mode::Paper, Mode::Newton] {
             comp.set_mode(mode).unwrap();
             comp.reset();
@@ -41,4 +52,50 @@ fn shipped_controller_configs_load_their_models_and_compensate() {
         seen += 1;
     }
     assert_eq!(seen, 3);
+}
+
+/// `bowden train` (bowden-learning) writes the support props the compensator reads: the two
+/// crates do not depend on each other, so the key names are checked here, end to end.
+#[test]
+fn the_support_train_writes_is_the_support_the_compensator_reads() {
+    use bowden_compensator::contract::keys;
+    use bowden_learning::support::{KEY_CMD_MAX, KEY_CMD_MIN, KEY_CMD_STEP_MAX, KEY_GAP_MAX};
+    assert_eq!(
+        [KEY_CMD_MIN, KEY_CMD_MAX, KEY_CMD_STEP_MAX, KEY_GAP_MAX],
+        [
+            keys::SUPPORT_CMD_MIN,
+            keys::SUPPORT_CMD_MAX,
+            keys::SUPPORT_CMD_STEP_MAX,
+            keys::SUPPORT_GAP_MAX
+        ]
+    );
+    let ds = bowden_learning::synthetic::hysteretic_dataset(400, 5, 3);
+    let w = bowden_learning::WindowSet::build(
+        &ds,
+        bowden_learning::Direction::Forward,
+        10,
+        bowden_learning::SplitConfig::default(),
+        bowden_learning::PhySource::Vision,
+    )
+    .unwrap();
+    let cfg = bowden_learning::TrainConfig::paper(
+        bowden_learning::Arch::Fnn,
+        bowden_learning::Direction::Forward,
+        10,
+        1,
+        0,
+    );
+    let m = bowden_learning::train(&w, &cfg, None).unwrap().model;
+    let want = m.support.clone().expect("train records the support");
+    let tmp = tempfile::tempdir().unwrap();
+    let p = tmp.path().join("m.onnx");
+    m.save(&p).unwrap();
+    let loaded = bowden_compensator::Model::load(&p).unwrap();
+    let got = loaded.support().expect("the compensator reads it");
+    for k in 0..5 {
+        assert_eq!(got.cmd_min_deg[k], want.cmd_min_deg[k]);
+        assert_eq!(got.cmd_max_deg[k], want.cmd_max_deg[k]);
+        assert_eq!(got.cmd_step_max_deg[k], want.cmd_step_max_deg[k]);
+        assert_eq!(got.gap_max_deg[k], want.gap_max_deg[k]);
+    }
 }
