@@ -12,6 +12,8 @@ pub enum Command {
     Runtime(super::runtime::BenchCommand),
     #[command(flatten)]
     Learning(super::learning::BenchCommand),
+    #[command(flatten)]
+    Transfer(super::transfer::BenchCommand),
 }
 
 pub fn run(c: Command) -> anyhow::Result<()> {
@@ -20,5 +22,6 @@ pub fn run(c: Command) -> anyhow::Result<()> {
         Command::Compensate(c) => super::compensate::bench(c),
         Command::Runtime(c) => super::runtime::bench(c),
         Command::Learning(c) => super::learning::bench(c),
+        Command::Transfer(c) => super::transfer::bench(c),
     }
 }

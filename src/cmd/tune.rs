@@ -22,6 +22,10 @@ pub struct TuneArgs {
     /// Inverse models to choose from (comma-separated .onnx files).
     #[arg(long, value_delimiter = ',', required = true)]
     pub inverse: Vec<PathBuf>,
+    /// Forward models that only rate the candidates (e.g. an accurate LSTM judging the TCN pair
+    /// a 1 kHz controller must use).
+    #[arg(long, value_delimiter = ',')]
+    pub judge: Vec<PathBuf>,
     /// Controller config whose other settings (limits, budget, load check, …) are kept.
     #[arg(long, default_value = "configs/controller.toml")]
     pub base: PathBuf,
@@ -65,14 +69,19 @@ pub fn run(c: Command) -> Result<()> {
 }
 
 /// How a model path should appear in the written config: relative to the config's directory
-/// when the model lies under it, else absolute.
+/// when the model lies under it, else relative to that directory's parent (the repository-root
+/// convention the compensator also resolves: `configs/x.toml` naming `models/m.onnx`), else
+/// absolute.
 fn shown_path(model: &Path, out_dir: &Path) -> Result<String> {
     let abs = std::fs::canonicalize(model).with_context(|| format!("{}", model.display()))?;
     let dir = std::fs::canonicalize(out_dir).unwrap_or_else(|_| out_dir.to_path_buf());
-    Ok(abs
-        .strip_prefix(&dir)
-        .map(|p| p.display().to_string())
-        .unwrap_or_else(|_| abs.display().to_string()))
+    if let Ok(p) = abs.strip_prefix(&dir) {
+        return Ok(p.display().to_string());
+    }
+    if let Some(Ok(p)) = dir.parent().map(|root| abs.strip_prefix(root)) {
+        return Ok(p.display().to_string());
+    }
+    Ok(abs.display().to_string())
 }
 
 fn run_tune(a: TuneArgs) -> Result<()> {
@@ -100,6 +109,7 @@ fn run_tune(a: TuneArgs) -> Result<()> {
         max_steps: a.max_steps,
         modes,
         prior_weights: a.prior_weights.clone(),
+        judges: a.judge.clone(),
     };
     let bar = ProgressBar::new(0);
     bar.set_style(
@@ -112,7 +122,11 @@ fn run_tune(a: TuneArgs) -> Result<()> {
         bar.set_position(done as u64);
     })?;
     bar.finish_and_clear();
-    let out_dir = a.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let out_dir = a
+        .out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
     std::fs::create_dir_all(out_dir).with_context(|| format!("{}", out_dir.display()))?;
     let text = config_toml(
         &base_text,
@@ -127,7 +141,13 @@ fn run_tune(a: TuneArgs) -> Result<()> {
     std::fs::write(&json, serde_json::to_string_pretty(&outcome.report)? + "\n")
         .with_context(|| format!("{}", json.display()))?;
     let r = &outcome.report;
-    print!("{}", text.lines().take_while(|l| l.starts_with('#')).map(|l| format!("{l}\n")).collect::<String>());
+    print!(
+        "{}",
+        text.lines()
+            .take_while(|l| l.starts_with('#'))
+            .map(|l| format!("{l}\n"))
+            .collect::<String>()
+    );
     println!(
         "wrote {} (mode {}, step {:.3}°) and {}",
         a.out.display(),

@@ -483,9 +483,16 @@ mod tests {
             threshold_deg: 0.5,
         };
         let mut seen: Vec<(u32, [f64; 2], [f64; 2])> = Vec::new();
-        let r = paper_refine(&mut toy, &d, &mut q, &p, &mut pred, &mut |_| {}, &mut || false, &mut |it, q, l| {
-            seen.push((it, [q[0], q[1]], [l[0], l[1]]))
-        });
+        let r = paper_refine(
+            &mut toy,
+            &d,
+            &mut q,
+            &p,
+            &mut pred,
+            &mut |_| {},
+            &mut || false,
+            &mut |it, q, l| seen.push((it, [q[0], q[1]], [l[0], l[1]])),
+        );
         let want = [
             (1, [4.0, 0.4], [-1.9, 0.0]),
             (2, [4.19, 0.4], [-1.52, 0.0]),

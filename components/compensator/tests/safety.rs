@@ -12,9 +12,7 @@
 mod common;
 use bowden_compensator::bench::random_trajectory;
 use bowden_compensator::config::HistoryRuleName;
-use bowden_compensator::{
-    Chosen, Compensator, ControllerConfig, Mode, Model, SafetyConfig, StepOutput, WindowModel,
-};
+use bowden_compensator::{Chosen, Compensator, ControllerConfig, Mode, Model, SafetyConfig, StepOutput, WindowModel};
 use bowden_kinematics::Robot;
 use common::with_props;
 
@@ -84,7 +82,10 @@ fn the_sent_command_is_never_rated_worse_than_the_target_unchanged() {
         // it; Algorithm 1's α = 0.001 barely moves the untrained inverse's estimate, which an
         // untrained forward model rates worse than the target itself.
         if mode == Mode::Newton {
-            assert!(chosen[0] > 0, "{mode}: the refinement's result is sent where it is better");
+            assert!(
+                chosen[0] > 0,
+                "{mode}: the refinement's result is sent where it is better"
+            );
         }
     }
     let _ = Chosen::Refined;
@@ -129,7 +130,11 @@ fn candidates_stay_inside_the_support_and_the_drift_guard_holds() {
                         if let Some(p) = prev {
                             // One history entry per step (every_step): the newest entry is the
                             // last command sent.
-                            assert!((c - p[k]).abs() <= STEP + 1e-9, "{mode}: step {:.2}° > {STEP}", c - p[k]);
+                            assert!(
+                                (c - p[k]).abs() <= STEP + 1e-9,
+                                "{mode}: step {:.2}° > {STEP}",
+                                c - p[k]
+                            );
                         }
                     }
                 }
@@ -154,9 +159,9 @@ fn candidates_stay_inside_the_support_and_the_drift_guard_holds() {
 #[test]
 fn partial_or_malformed_support_metadata_is_refused_by_key() {
     let e = with_props("tcn_forward_L80_J5_s0", &[("support_cmd_min_deg", "1,2,3,4,5")])
-        .err()
-        .expect("partial support refused")
-        .to_string();
+        .map(|_| ())
+        .map_err(|e| e.to_string())
+        .expect_err("partial support refused");
     assert!(e.contains("support_cmd_max_deg"), "{e}");
     let e = with_props(
         "tcn_forward_L80_J5_s0",
@@ -167,9 +172,9 @@ fn partial_or_malformed_support_metadata_is_refused_by_key() {
             ("support_gap_max_deg", "1,2,3,4,5"),
         ],
     )
-    .err()
-    .expect("wrong length refused")
-    .to_string();
+    .map(|_| ())
+    .map_err(|e| e.to_string())
+    .expect_err("wrong length refused");
     assert!(e.contains("support_cmd_min_deg"), "{e}");
     let e = with_props(
         "tcn_forward_L80_J5_s0",
@@ -180,8 +185,8 @@ fn partial_or_malformed_support_metadata_is_refused_by_key() {
             ("support_gap_max_deg", "1,2,3,4,5"),
         ],
     )
-    .err()
-    .expect("NaN refused")
-    .to_string();
+    .map(|_| ())
+    .map_err(|e| e.to_string())
+    .expect_err("NaN refused");
     assert!(e.contains("support_cmd_step_max_deg"), "{e}");
 }

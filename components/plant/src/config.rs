@@ -1,5 +1,12 @@
 //! `configs/plant.toml`: the physical parameters of the simulated tendon-sheath drive,
 //! validated on load. A second robot (another sheath routing, other cables) is another file.
+//!
+//! The top-level `family` key picks the hysteresis model (see [`FamilyKind`]); each family has
+//! its own table (`[hysteresis]` for `capstan`, `[bouc_wen]`, `[lugre]`), required when that
+//! family is selected and refused otherwise. The other tables describe the drive and the joints
+//! and are shared: every family reads `[joints]`, `[cables]`, `[dynamics]`, `[drift]`,
+//! `[variation]` and `[command]`; `[sheath]` and `[body]` set the friction of the cable-space
+//! families (`bouc-wen` reads only `sheath.length_mm`, for the cables' compliance).
 
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -72,6 +79,82 @@ pub struct JointsConfig {
     pub coupling: [[f64; N_JOINTS]; N_JOINTS],
 }
 
+/// Which hysteresis model the plant simulates (`family = "…"` at the top of the plant file).
+#[derive(Debug, Clone, Copy, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum FamilyKind {
+    /// Cable space, rate-independent: capstan dead band + generalised Prandtl–Ishlinskii plays
+    /// per cable (`[hysteresis]`). The default: files without `family` are this.
+    #[default]
+    Capstan,
+    /// Joint space, rate-independent: an asymmetric Bouc–Wen lag per joint (`[bouc_wen]`).
+    BoucWen,
+    /// Cable space, rate-dependent: LuGre friction on an elastic cable per cable (`[lugre]`).
+    Lugre,
+}
+
+impl FamilyKind {
+    /// The spelling used in plant files.
+    pub fn name(self) -> &'static str {
+        match self {
+            FamilyKind::Capstan => "capstan",
+            FamilyKind::BoucWen => "bouc-wen",
+            FamilyKind::Lugre => "lugre",
+        }
+    }
+
+    /// The family's own table in a plant file.
+    pub fn table(self) -> &'static str {
+        match self {
+            FamilyKind::Capstan => "hysteresis",
+            FamilyKind::BoucWen => "bouc_wen",
+            FamilyKind::Lugre => "lugre",
+        }
+    }
+}
+
+/// `[bouc_wen]`: a rate-independent Bouc–Wen lag per joint, in joint space (see
+/// `families::bouc_wen`). The input x is the joint command decoded from the cable command; the
+/// output lags it by λ = W·ζ: q_h = x − λ, dζ = (dx/W)·(1 − |ζ|ⁿ·(β·sgn(dx·ζ) + γ)).
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct BoucWenConfig {
+    /// Saturated lag W of each joint behind an increasing command (ζ > 0), deg.
+    pub width_up_deg: [f64; N_JOINTS],
+    /// Saturated lag W of each joint behind a decreasing command (ζ < 0), deg.
+    pub width_down_deg: [f64; N_JOINTS],
+    /// Sharpness n of the transition from the dead band to the saturated lag (1 = rounded).
+    pub exponent: f64,
+    /// β and γ of the Bouc–Wen law, A = 1. β + γ = 1 makes the saturated lag exactly W;
+    /// γ − β ≥ 0 is the slope dq/dx right after a reversal (0: a backlash-like dead band).
+    pub beta: f64,
+    pub gamma: f64,
+    /// Relative widening of each joint's W per rad of bend of q1, q2, q3 (row = joint whose
+    /// band widens, column = bending joint): cables crossing a bent segment rub on its hinges.
+    pub widening_per_rad: [[f64; 3]; N_JOINTS],
+}
+
+/// `[lugre]`: LuGre friction (Canudas de Wit et al. 1995) between each cable and its sheath,
+/// lumped at the cable's distal end (see `families::lugre`). Friction levels come from the
+/// capstan relation Fc = T·(1 − e^{−μφ}) with `[sheath]`, `[body]` and the cable tension.
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct LugreConfig {
+    /// σ0: stiffness of the bristles (pre-sliding displacement ≈ Fc/σ0), N/mm.
+    pub bristle_stiffness_n_per_mm: f64,
+    /// σ1: micro-damping of the bristles, N·s/mm.
+    pub bristle_damping_ns_per_mm: f64,
+    /// σ2: viscous friction, N·s/mm. > 0: it is what bounds the massless slider's speed.
+    pub viscous_ns_per_mm: f64,
+    /// Fs/Fc: static (breakaway) over Coulomb friction, ≥ 1.
+    pub stribeck_ratio: f64,
+    /// vs: Stribeck velocity, mm/s.
+    pub stribeck_velocity_mm_per_s: f64,
+    /// Free play (backlash) of each cable pair at its distal termination, mm of pair difference
+    /// (full width), per joint.
+    pub free_play_mm: [f64; N_JOINTS],
+}
+
 /// Rate-independent hysteresis per cable: a generalised Prandtl–Ishlinskii operator.
 #[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -106,7 +189,9 @@ pub struct DriftConfig {
 #[serde(deny_unknown_fields)]
 pub struct VariationConfig {
     /// Relative standard deviation (truncated at ±3σ) applied to each cable's stiffness,
-    /// pre-tension and sheath wrap and to each joint's stiffness.
+    /// pre-tension and sheath wrap and to each joint's stiffness, and to the family's own
+    /// parameters (`bouc-wen`: each joint's two widths and its widening; `lugre`: each cable's
+    /// bristle stiffness and damping and viscous friction, each pair's free play).
     pub relative_sd: f64,
     /// Which manufactured unit this file describes: the seed of its variation. A robot is one
     /// unit: its dataset is collected on it and its controller evaluated on it, whatever the
@@ -136,11 +221,22 @@ pub struct CommandConfig {
 #[serde(deny_unknown_fields)]
 pub struct PlantConfig {
     pub name: String,
+    /// The hysteresis model; absent = `capstan`.
+    #[serde(default)]
+    pub family: FamilyKind,
     pub sheath: SheathConfig,
     pub body: BodyConfig,
     pub cables: CablesConfig,
     pub joints: JointsConfig,
-    pub hysteresis: HysteresisConfig,
+    /// `[hysteresis]`: the `capstan` family's plays (required for it, refused for the others).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hysteresis: Option<HysteresisConfig>,
+    /// `[bouc_wen]`: required when `family = "bouc-wen"`, refused otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bouc_wen: Option<BoucWenConfig>,
+    /// `[lugre]`: required when `family = "lugre"`, refused otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lugre: Option<LugreConfig>,
     pub dynamics: DynamicsConfig,
     pub drift: DriftConfig,
     pub variation: VariationConfig,
@@ -254,19 +350,20 @@ impl PlantConfig {
                 }
             }
         }
-        let h = &self.hysteresis;
-        if !(1..=MAX_PLAYS).contains(&h.plays) {
-            return Err(bad(
-                "hysteresis.plays".into(),
-                format!("must be 1..={MAX_PLAYS}, got {}", h.plays),
-            ));
+        if let Some(h) = &self.hysteresis {
+            if !(1..=MAX_PLAYS).contains(&h.plays) {
+                return Err(bad(
+                    "hysteresis.plays".into(),
+                    format!("must be 1..={MAX_PLAYS}, got {}", h.plays),
+                ));
+            }
+            check(
+                "hysteresis.threshold_spread".into(),
+                h.threshold_spread,
+                (0.0..1.0).contains(&h.threshold_spread),
+                "in [0, 1)",
+            )?;
         }
-        check(
-            "hysteresis.threshold_spread".into(),
-            h.threshold_spread,
-            (0.0..1.0).contains(&h.threshold_spread),
-            "in [0, 1)",
-        )?;
         let tau = self.dynamics.time_constant_s;
         check(
             "dynamics.time_constant_s".into(),
@@ -285,6 +382,139 @@ impl PlantConfig {
         )?;
         let cm = self.command.margin_mm;
         check("command.margin_mm".into(), cm, cm >= 0.0, "≥ 0 mm")?;
+        self.validate_family(path)
+    }
+
+    /// The selected family's table is present and valid; the other families' are absent.
+    fn validate_family(&self, path: &Path) -> Result<(), PlantConfigError> {
+        let bad = |field: String, problem: String| PlantConfigError::Invalid {
+            path: path.to_path_buf(),
+            field,
+            problem,
+        };
+        let check = |field: String, v: f64, ok: bool, want: &str| {
+            if v.is_finite() && ok {
+                Ok(())
+            } else {
+                Err(bad(field, format!("must be {want}, got {v}")))
+            }
+        };
+        let family = self.family;
+        let present = [
+            (FamilyKind::Capstan, self.hysteresis.is_some()),
+            (FamilyKind::BoucWen, self.bouc_wen.is_some()),
+            (FamilyKind::Lugre, self.lugre.is_some()),
+        ];
+        for (kind, is_present) in present {
+            if kind == family && !is_present {
+                return Err(bad(
+                    kind.table().into(),
+                    format!(
+                        "the [{}] table is required when family = \"{}\"",
+                        kind.table(),
+                        kind.name()
+                    ),
+                ));
+            }
+            if kind != family && is_present {
+                return Err(bad(
+                    kind.table().into(),
+                    format!(
+                        "the [{}] table belongs to family \"{}\" but this file selects family = \"{}\"; remove the table or change `family`",
+                        kind.table(),
+                        kind.name(),
+                        family.name()
+                    ),
+                ));
+            }
+        }
+        if let Some(b) = &self.bouc_wen {
+            for k in 0..N_JOINTS {
+                for (name, w) in [
+                    ("width_up_deg", b.width_up_deg[k]),
+                    ("width_down_deg", b.width_down_deg[k]),
+                ] {
+                    check(
+                        format!("bouc_wen.{name}[{k}]"),
+                        w,
+                        (0.01..=90.0).contains(&w),
+                        "in [0.01, 90] deg",
+                    )?;
+                }
+                for c in 0..3 {
+                    let v = b.widening_per_rad[k][c];
+                    check(
+                        format!("bouc_wen.widening_per_rad[{k}][{c}]"),
+                        v,
+                        (0.0..=10.0).contains(&v),
+                        "in [0, 10] per rad",
+                    )?;
+                }
+            }
+            check(
+                "bouc_wen.exponent".into(),
+                b.exponent,
+                (1.0..=20.0).contains(&b.exponent),
+                "in [1, 20]",
+            )?;
+            check("bouc_wen.beta".into(), b.beta, b.beta >= 0.0, "≥ 0")?;
+            check(
+                "bouc_wen.gamma".into(),
+                b.gamma,
+                b.gamma >= b.beta,
+                "≥ bouc_wen.beta (otherwise the joint moves against its command after a reversal)",
+            )?;
+            let sum = b.beta + b.gamma;
+            if (sum - 1.0).abs() > 1e-9 {
+                return Err(bad(
+                    "bouc_wen.gamma".into(),
+                    format!(
+                        "beta + gamma must be 1 (A = 1, so that the saturated lag is the width), got {} + {} = {sum}",
+                        b.beta, b.gamma
+                    ),
+                ));
+            }
+        }
+        if let Some(l) = &self.lugre {
+            check(
+                "lugre.bristle_stiffness_n_per_mm".into(),
+                l.bristle_stiffness_n_per_mm,
+                l.bristle_stiffness_n_per_mm > 0.0 && l.bristle_stiffness_n_per_mm <= 1e6,
+                "in (0, 1e6] N/mm",
+            )?;
+            check(
+                "lugre.bristle_damping_ns_per_mm".into(),
+                l.bristle_damping_ns_per_mm,
+                l.bristle_damping_ns_per_mm >= 0.0 && l.bristle_damping_ns_per_mm <= 1e3,
+                "in [0, 1e3] N·s/mm",
+            )?;
+            check(
+                "lugre.viscous_ns_per_mm".into(),
+                l.viscous_ns_per_mm,
+                l.viscous_ns_per_mm >= 1e-4 && l.viscous_ns_per_mm <= 1e3,
+                "in [1e-4, 1e3] N·s/mm (the massless slider needs viscous friction)",
+            )?;
+            check(
+                "lugre.stribeck_ratio".into(),
+                l.stribeck_ratio,
+                (1.0..=5.0).contains(&l.stribeck_ratio),
+                "in [1, 5]",
+            )?;
+            check(
+                "lugre.stribeck_velocity_mm_per_s".into(),
+                l.stribeck_velocity_mm_per_s,
+                l.stribeck_velocity_mm_per_s > 0.0 && l.stribeck_velocity_mm_per_s <= 1e4,
+                "in (0, 1e4] mm/s",
+            )?;
+            for (k, &b) in l.free_play_mm.iter().enumerate() {
+                check(
+                    format!("lugre.free_play_mm[{k}]"),
+                    b,
+                    (0.0..=10.0).contains(&b),
+                    "in [0, 10] mm",
+                )?;
+            }
+        }
         Ok(())
     }
 }

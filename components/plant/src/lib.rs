@@ -1,11 +1,31 @@
 //! `bowden-plant`: the simulated tendon-sheath manipulator every other part of bowden is
 //! tested against (DESIGN.md §6), and the paper's dataset protocol run on it.
 //!
-//! - [`Plant`]: driven by cable displacement commands (eq. 5), hysteresis in cable space
-//!   (capstan dead band growing with sheath curvature and tension, a generalised
-//!   Prandtl–Ishlinskii memory per cable, elastic stretch, creep), joints back through the
-//!   inverse cable equation, first-order settling. Seeded, deterministic, allocation-free steps.
-//! - [`PlantConfig`]: `configs/plant.toml` (deny_unknown_fields, validated).
+//! - [`Plant`]: driven by cable displacement commands (eq. 5), the joint command decoded from
+//!   them by the inverse cable equation; hysteresis from one of three independently formulated
+//!   families, chosen by the plant file's `family` ([`FamilyKind`]); then the residual coupling
+//!   matrix, per-joint gains and offsets, joint limits and jaw contact, and first-order settling.
+//!   Seeded per-unit variation, deterministic, allocation-free steps, typed errors that change
+//!   nothing. The families:
+//!   - `capstan` (the default; [`plant`], [`hysteresis`]): cable space, rate-independent. A
+//!     capstan dead band per cable growing with sheath curvature and tension, a generalised
+//!     Prandtl–Ishlinskii memory per cable, elastic stretch under the joint stiffness, creep;
+//!     joints back through the inverse cable equation (tendon-sheath experiments of Kaneko and of
+//!     Do et al.). `configs/plant.toml`, `configs/plant-robot2.toml`.
+//!   - `bouc-wen` ([`families::bouc_wen`]): joint space, rate-independent. An asymmetric Bouc–Wen
+//!     lag per joint behind its decoded command (Bouc 1967; Wen 1976; Ismail, Ikhouane &
+//!     Rodellar 2009; Song & Der Kiureghian 2006), widening with the bend of the proximal
+//!     segments, an elastic gain loss from the cables' stretch; creep narrows the band,
+//!     then adds free play and shifts the joint. `configs/plant-boucwen.toml`.
+//!   - `lugre` ([`families::lugre`]): cable space, rate-dependent. Each cable an elastic spring
+//!     to a massless distal slider with LuGre friction against its sheath (Canudas de Wit et al.
+//!     1995), Coulomb level from the capstan relation with the sheath wrap plus the crossed
+//!     bends, loaded by the joint stiffness, a free play per cable pair (Do et al.), sub-stepped
+//!     at ≤ 0.25 ms. `configs/plant-lugre.toml`.
+//!
+//!   All three are tuned into the paper's Table IV range under the dataset protocol.
+//! - [`PlantConfig`]: the plant files (deny_unknown_fields, validated; the selected family's
+//!   table required, the others' refused).
 //! - [`characterize()`]: eq. (16) commands held 0.5 s each → Table IV figures and Fig. 9b loops.
 //!
 //! ```
@@ -21,9 +41,10 @@
 
 pub mod characterize;
 pub mod config;
+pub mod families;
 pub mod hysteresis;
 pub mod plant;
 
 pub use characterize::{characterize, Characterization, CharacterizeOptions, JointStats, PlotError};
-pub use config::{PlantConfig, PlantConfigError};
+pub use config::{BoucWenConfig, FamilyKind, LugreConfig, PlantConfig, PlantConfigError};
 pub use plant::{Plant, PlantError};

@@ -1,6 +1,14 @@
 //! The simulated manipulator: cable commands in, true joint angles out.
 //!
-//! One step, for a command u (mm pulled in at the drive unit, eq. 5 of q_cmd):
+//! Every family (`family` in the plant file) shares the command checks and decoding, the
+//! per-unit variation of the drive (cable stiffness, pre-tension, sheath wrap, joint
+//! stiffness: drawn first, in the same order for every family), the residual coupling, gains
+//! and offsets, contact and limits, the first-order settling and creep's slack; the
+//! `bouc-wen` and `lugre` families' own models are in [`crate::families`]. The default,
+//! `capstan`, is described here.
+//!
+//! One step of the capstan family, for a command u (mm pulled in at the drive unit, eq. 5 of
+//! q_cmd):
 //! 1. every cable's distal end follows u through its sheath: a generalised Prandtl–Ishlinskii
 //!    operator whose thresholds are the capstan dead band h = c·T·(cosh μφ − 1)/μφ of that
 //!    cable, with φ = the sheath wrap plus the bend of every segment the cable crosses inside
@@ -30,12 +38,10 @@ use bowden_interfaces::PlantState;
 use bowden_kinematics::cables::CableError;
 use bowden_kinematics::{JointsDeg, Robot, N_CABLES, N_JOINTS};
 
-use crate::config::{PlantConfig, MAX_PLAYS};
+use crate::config::{FamilyKind, PlantConfig, MAX_PLAYS};
+use crate::families::{bouc_wen, lugre, pair_creep, Shared, BEND_JOINTS};
 use crate::hysteresis::{capstan_half_width_mm, capstan_mean_stretch_mm, play, threshold_scales};
 
-/// Joints that are bending segments (q1, q2: segment 1; q3: segment 2): cables crossing them
-/// wrap the hinges by their bend. The jaws (q4, q5) are pulleys.
-const BEND_JOINTS: usize = 3;
 /// Fixed-point iterations per step at most, and the tolerance (rad) that stops them earlier.
 const MAX_ITERATIONS: u32 = 12;
 const TOLERANCE_RAD: f64 = 1e-7;
@@ -87,6 +93,29 @@ struct State {
     tension_n: [f64; N_CABLES],
     t_sim_ns: u64,
     iterations: u32,
+    /// The state of the `bouc-wen` or `lugre` family (the capstan's is `z_mm`).
+    family: FamilyState,
+}
+
+/// The evolving state of the selected family beyond what every family shares.
+// Held by value: a step builds the next `State` on the stack and commits it whole, and boxing
+// would allocate on the real-time path.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum FamilyState {
+    Capstan,
+    BoucWen(bouc_wen::State),
+    Lugre(lugre::State),
+}
+
+/// Instance parameters of the selected family beyond the shared ones (one per plant, by value
+/// like the rest of its parameters).
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone)]
+enum Family {
+    Capstan,
+    BoucWen(bouc_wen::Params),
+    Lugre(lugre::Params),
 }
 
 /// The result of evaluating the quasi-static map once.
@@ -127,6 +156,7 @@ pub struct Plant {
     drift_max_mm: f64,
     u_min_mm: [f64; N_CABLES],
     u_max_mm: [f64; N_CABLES],
+    family: Family,
     state: State,
     initial: State,
 }
@@ -134,6 +164,10 @@ pub struct Plant {
 impl Plant {
     /// A plant for `robot` with the parameters of `config`, varied per cable by the seeded
     /// manufacturing spread (`variation.relative_sd`). Same arguments → the same plant.
+    ///
+    /// # Panics
+    /// If `config` selects a family whose table is absent (a config that
+    /// [`PlantConfig::validate`] refuses; every loaded config is validated).
     pub fn new(robot: &Robot, config: &PlantConfig, seed: u64) -> Plant {
         let cables = robot.cables();
         let pairs = *cables.pairs();
@@ -220,12 +254,13 @@ impl Plant {
             .and_then(|ji| (Matrix5::identity() + joint_map * ji * stretch_gain * tension_matrix).try_inverse())
             .unwrap_or_else(Matrix5::identity);
 
+        // Families other than capstan carry no [hysteresis]: one play of unit scale, unused.
+        let (plays, threshold_spread) = config
+            .hysteresis
+            .as_ref()
+            .map_or((1, 0.0), |h| (h.plays, h.threshold_spread));
         let mut play_scale = [0.0; MAX_PLAYS];
-        threshold_scales(
-            config.hysteresis.plays,
-            config.hysteresis.threshold_spread,
-            &mut play_scale,
-        );
+        threshold_scales(plays, threshold_spread, &mut play_scale);
 
         // Displacement range the joint limits span. Eq. (5) is a sum of one term per joint, so
         // the range is the sum of each term's range over its joint's interval.
@@ -257,6 +292,67 @@ impl Plant {
             u_max_mm[i] += config.command.margin_mm;
         }
 
+        // The other families' parameters, drawn after the shared ones (so the capstan plant's
+        // draws, and hence its instances, are what they always were).
+        let jac_inv = jac.try_inverse().unwrap_or_else(Matrix5::zeros);
+        let missing = |kind: FamilyKind| -> ! {
+            panic!(
+                "plant config `{}` selects family \"{}\" without its [{}] table (validate the config first)",
+                config.name,
+                kind.name(),
+                kind.table()
+            )
+        };
+        let (family, family_state) = match config.family {
+            FamilyKind::Capstan => {
+                if config.hysteresis.is_none() {
+                    missing(FamilyKind::Capstan);
+                }
+                (Family::Capstan, FamilyState::Capstan)
+            }
+            FamilyKind::BoucWen => {
+                let Some(bw) = &config.bouc_wen else {
+                    missing(FamilyKind::BoucWen)
+                };
+                // Stretch of the pairs under the joint stiffness: q_h = q_e + J0⁻¹·Cp·Tm·q_e.
+                let mut cp = Matrix5::<f64>::zeros();
+                for (p, &(a, b)) in pairs.iter().enumerate() {
+                    cp[(p, p)] = 0.5 * (compliance_mm_per_n[a] + compliance_mm_per_n[b]);
+                }
+                let elastic = (Matrix5::identity() + jac_inv * cp * tension_matrix)
+                    .try_inverse()
+                    .unwrap_or_else(Matrix5::identity);
+                let lever_mm = core::array::from_fn(|k| jac[(k, k)]);
+                let params = bouc_wen::Params::new(bw, elastic, jac_inv, lever_mm, &mut vary);
+                (
+                    Family::BoucWen(params),
+                    FamilyState::BoucWen(bouc_wen::State::relaxed()),
+                )
+            }
+            FamilyKind::Lugre => {
+                let Some(lg) = &config.lugre else {
+                    missing(FamilyKind::Lugre)
+                };
+                let shared = Shared {
+                    compliance_mm_per_n: &compliance_mm_per_n,
+                    sheath_x: &sheath_x,
+                    body_mu: config.body.friction_coefficient,
+                    crosses: &crosses,
+                    pairs: &pairs,
+                    pair_of: &pair_of,
+                    pair_sign: &pair_sign,
+                    zero_mm: &zero,
+                    offset_rad: &j.offset_deg.map(f64::to_radians),
+                    jac_inv,
+                    tension_matrix,
+                    joint_map,
+                };
+                let params = lugre::Params::new(lg, &shared, &mut vary);
+                let st = params.relaxed(&zero);
+                (Family::Lugre(params), FamilyState::Lugre(st))
+            }
+        };
+
         // Relaxed at the straight command: the joints sit at their zero offsets.
         let offset_rad = j.offset_deg.map(f64::to_radians);
         let q0 = robot.clamp_to_limits(&j.offset_deg);
@@ -271,6 +367,7 @@ impl Plant {
             tension_n: pretension_n,
             t_sim_ns: 0,
             iterations: 0,
+            family: family_state,
         };
         Plant {
             robot: robot.clone(),
@@ -288,7 +385,7 @@ impl Plant {
             stretch0_mm,
             preconditioner,
             play_scale,
-            plays: config.hysteresis.plays,
+            plays,
             joint_map,
             offset_rad,
             tau_s: config.dynamics.time_constant_s,
@@ -296,6 +393,7 @@ impl Plant {
             drift_max_mm: config.drift.max_mm,
             u_min_mm,
             u_max_mm,
+            family,
             state: initial,
             initial,
         }
@@ -311,10 +409,32 @@ impl Plant {
         let q_cmd_deg = self.check_command(cable_disp_mm)?;
         let t_next_ns = self.state.t_sim_ns.saturating_add((dt_s * 1e9).round() as u64);
         let slack_mm = self.slack_mm(t_next_ns);
+        let next = match (&self.family, &self.state.family) {
+            (Family::BoucWen(p), FamilyState::BoucWen(st)) => {
+                self.next_bouc_wen(p, *st, cable_disp_mm, dt_s, q_cmd_deg, t_next_ns, &slack_mm)
+            }
+            (Family::Lugre(p), FamilyState::Lugre(st)) => {
+                self.next_lugre(p, *st, cable_disp_mm, dt_s, q_cmd_deg, t_next_ns, &slack_mm)
+            }
+            (Family::Capstan, _) => self.next_capstan(cable_disp_mm, dt_s, q_cmd_deg, t_next_ns, &slack_mm),
+            _ => unreachable!("a plant's state is always of its own family"),
+        }?;
+        self.state = next;
+        Ok(())
+    }
 
+    /// The capstan family's step: the state after `dt_s` (nothing committed).
+    fn next_capstan(
+        &self,
+        cable_disp_mm: &[f64; N_CABLES],
+        dt_s: f64,
+        q_cmd_deg: JointsDeg,
+        t_next_ns: u64,
+        slack_mm: &[f64; N_CABLES],
+    ) -> Result<State, PlantError> {
         // Quasi-static equilibrium q = Q(q), warm-started from the last one.
         let mut q = self.state.q_eq_rad;
-        let mut eval = self.quasi_static(cable_disp_mm, &q, &slack_mm)?;
+        let mut eval = self.quasi_static(cable_disp_mm, &q, slack_mm)?;
         let mut iterations = 1;
         loop {
             let r = Vector5::from(q) - Vector5::from(eval.q_rad);
@@ -326,20 +446,12 @@ impl Plant {
                 // ±π bounds what eq. (5) can invert; the physical state is far inside.
                 q[k] = (q[k] - step[k]).clamp(-core::f64::consts::PI, core::f64::consts::PI);
             }
-            eval = self.quasi_static(cable_disp_mm, &q, &slack_mm)?;
+            eval = self.quasi_static(cable_disp_mm, &q, slack_mm)?;
             iterations += 1;
         }
 
-        let q_eq_deg = eval.q_rad.map(f64::to_degrees);
-        let q_qs_deg = self.robot.clamp_to_limits(&q_eq_deg);
-        // Exact discretisation of the first-order lag: any dt is stable.
-        let alpha = 1.0 - (-dt_s / self.tau_s).exp();
-        let mut q_phy_deg = self.state.q_phy_deg;
-        for k in 0..N_JOINTS {
-            q_phy_deg[k] += alpha * (q_qs_deg[k] - q_phy_deg[k]);
-        }
-
-        self.state = State {
+        let (q_qs_deg, q_phy_deg) = self.settle_toward(&eval.q_rad, dt_s);
+        Ok(State {
             z_mm: eval.z_mm,
             q_eq_rad: eval.q_rad,
             q_qs_deg,
@@ -350,8 +462,137 @@ impl Plant {
             tension_n: eval.tension_n,
             t_sim_ns: t_next_ns,
             iterations,
+            family: FamilyState::Capstan,
+        })
+    }
+
+    /// The `bouc-wen` family's step (see [`crate::families::bouc_wen`]): joint command → lag per
+    /// joint → creep offset → elastic stretch → coupling, gains, offsets.
+    #[allow(clippy::too_many_arguments)]
+    fn next_bouc_wen(
+        &self,
+        params: &bouc_wen::Params,
+        mut bw: bouc_wen::State,
+        cable_disp_mm: &[f64; N_CABLES],
+        dt_s: f64,
+        q_cmd_deg: JointsDeg,
+        t_next_ns: u64,
+        slack_mm: &[f64; N_CABLES],
+    ) -> Result<State, PlantError> {
+        let creep = pair_creep(&self.pairs, &self.compliance_mm_per_n, &self.pretension_n, slack_mm);
+        let band = bouc_wen::Creep {
+            width_scale: creep.map(|c| c.tension_ratio),
+            extra_deg: core::array::from_fn(|k| {
+                let lever = params.lever_mm[k].abs();
+                if lever > 0.0 {
+                    (0.5 * creep[k].excess_mm / lever).to_degrees()
+                } else {
+                    0.0
+                }
+            }),
         };
-        Ok(())
+        let substeps = params.advance(&mut bw, &self.state.q_cmd_deg, &q_cmd_deg, &band);
+        // Creep moves the distal ends out: the joints shift by −J0⁻¹·(s_a − s_b).
+        let ds = Vector5::from(core::array::from_fn(|p| {
+            let (a, b) = self.pairs[p];
+            slack_mm[a] - slack_mm[b]
+        }));
+        let shift = params.jac_inv * ds;
+        let q_h = Vector5::from(core::array::from_fn(|k| {
+            (q_cmd_deg[k] - bw.lag_deg[k]).to_radians() - shift[k]
+        }));
+        let q_e = params.elastic * q_h;
+        let q_out = self.joint_map * q_e;
+        let q_rad: [f64; N_JOINTS] = core::array::from_fn(|k| q_out[k] + self.offset_rad[k]);
+
+        // What the cables do: their distal ends follow the stretched joints, their tensions
+        // hold them against the joint stiffness.
+        let q_e_deg: JointsDeg = core::array::from_fn(|k| q_e[k].to_degrees());
+        let tip_mm = self.robot.cables().displacements_mm(&q_e_deg);
+        let delta_t = self.tension_matrix * q_e;
+        let tension_n = core::array::from_fn(|i| {
+            let p = self.pair_of[i];
+            (self.pretension_n[i] - creep[p].drop_n + self.pair_sign[i] * 0.5 * delta_t[p]).max(0.0)
+        });
+
+        let (q_qs_deg, q_phy_deg) = self.settle_toward(&q_rad, dt_s);
+        Ok(State {
+            z_mm: self.state.z_mm,
+            q_eq_rad: q_rad,
+            q_qs_deg,
+            q_phy_deg,
+            q_cmd_deg,
+            u_mm: *cable_disp_mm,
+            tip_mm,
+            tension_n,
+            t_sim_ns: t_next_ns,
+            iterations: substeps,
+            family: FamilyState::BoucWen(bw),
+        })
+    }
+
+    /// The `lugre` family's step (see [`crate::families::lugre`]): sub-stepped cable friction
+    /// dynamics → distal ends, creep and free play → inverse cable equation → coupling, gains,
+    /// offsets.
+    #[allow(clippy::too_many_arguments)]
+    fn next_lugre(
+        &self,
+        params: &lugre::Params,
+        mut lg: lugre::State,
+        cable_disp_mm: &[f64; N_CABLES],
+        dt_s: f64,
+        q_cmd_deg: JointsDeg,
+        t_next_ns: u64,
+        slack_mm: &[f64; N_CABLES],
+    ) -> Result<State, PlantError> {
+        let creep = pair_creep(&self.pairs, &self.compliance_mm_per_n, &self.pretension_n, slack_mm);
+        let pretension_n: [f64; N_CABLES] =
+            core::array::from_fn(|i| (self.pretension_n[i] - creep[self.pair_of[i]].drop_n).max(0.0));
+        let input = lugre::StepInput {
+            u_mm: cable_disp_mm,
+            slack_mm,
+            pretension_n: &pretension_n,
+            creep: &creep,
+        };
+        let mut tension_n = [0.0; N_CABLES];
+        let substeps = params.advance(&mut lg, &input, dt_s, &mut tension_n);
+        let tip_mm = params.tips_mm(&lg, slack_mm);
+        let q_cables_deg = self
+            .robot
+            .cables()
+            .joints_from_displacements(&tip_mm)
+            .map_err(PlantError::UndecodableState)?;
+        let q_out = self.joint_map * Vector5::from(q_cables_deg.map(f64::to_radians));
+        let q_rad: [f64; N_JOINTS] = core::array::from_fn(|k| q_out[k] + self.offset_rad[k]);
+
+        let (q_qs_deg, q_phy_deg) = self.settle_toward(&q_rad, dt_s);
+        Ok(State {
+            z_mm: self.state.z_mm,
+            q_eq_rad: q_rad,
+            q_qs_deg,
+            q_phy_deg,
+            q_cmd_deg,
+            u_mm: *cable_disp_mm,
+            tip_mm,
+            tension_n,
+            t_sim_ns: t_next_ns,
+            iterations: substeps,
+            family: FamilyState::Lugre(lg),
+        })
+    }
+
+    /// Joint limits and jaw contact on the quasi-static angles `q_eq_rad`, then the first-order
+    /// settling of q_phy toward them over `dt_s`: (q_qs, q_phy), deg.
+    fn settle_toward(&self, q_eq_rad: &[f64; N_JOINTS], dt_s: f64) -> (JointsDeg, JointsDeg) {
+        let q_eq_deg = q_eq_rad.map(f64::to_degrees);
+        let q_qs_deg = self.robot.clamp_to_limits(&q_eq_deg);
+        // Exact discretisation of the first-order lag: any dt is stable.
+        let alpha = 1.0 - (-dt_s / self.tau_s).exp();
+        let mut q_phy_deg = self.state.q_phy_deg;
+        for k in 0..N_JOINTS {
+            q_phy_deg[k] += alpha * (q_qs_deg[k] - q_phy_deg[k]);
+        }
+        (q_qs_deg, q_phy_deg)
     }
 
     /// Holds `cable_disp_mm` for `duration_s` in steps of `dt_s` (the last one shortened to end

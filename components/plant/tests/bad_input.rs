@@ -6,9 +6,18 @@ use bowden_kinematics::Robot;
 use bowden_plant::{Plant, PlantConfig, PlantConfigError, PlantError};
 use common::state_bytes;
 
-fn warmed_up() -> (Robot, Plant) {
+/// The shipped plant of every hysteresis family: the checks below hold for each.
+fn every_family() -> Vec<PlantConfig> {
+    let mut out = vec![PlantConfig::paper_default()];
+    for file in ["plant-boucwen.toml", "plant-lugre.toml"] {
+        out.push(PlantConfig::load(format!("{}/../../configs/{file}", env!("CARGO_MANIFEST_DIR"))).unwrap());
+    }
+    out
+}
+
+fn warmed_up(config: &PlantConfig) -> (Robot, Plant) {
     let robot = Robot::paper_default();
-    let mut plant = Plant::new(&robot, &PlantConfig::paper_default(), 3);
+    let mut plant = Plant::new(&robot, config, 3);
     for q in [[20.0, -10.0, 15.0, -20.0, 5.0], [-5.0, 12.0, -8.0, -3.0, 25.0]] {
         plant.settle_joints(&q, 0.3, 0.01).unwrap();
     }
@@ -18,7 +27,13 @@ fn warmed_up() -> (Robot, Plant) {
 
 #[test]
 fn rejected_commands_leave_the_state_untouched() {
-    let (robot, mut plant) = warmed_up();
+    for config in every_family() {
+        rejected_commands_leave(&config);
+    }
+}
+
+fn rejected_commands_leave(config: &PlantConfig) {
+    let (robot, mut plant) = warmed_up(config);
     let good = robot.cables().displacements_mm(&[10.0, 10.0, 10.0, -10.0, 10.0]);
     let before = state_bytes(&plant);
     let (lo, hi) = plant.command_range_mm();
@@ -99,11 +114,13 @@ fn rejected_commands_leave_the_state_untouched() {
 #[test]
 fn commands_at_the_joint_limits_are_accepted() {
     let robot = Robot::paper_default();
-    let mut plant = Plant::new(&robot, &PlantConfig::paper_default(), 3);
-    let lim = robot.config.limits.clone();
-    for q in [lim.q_min_deg, lim.q_max_deg, [60.0, -60.0, 44.0, -50.0, 50.0]] {
-        let q = robot.clamp_to_limits(&q);
-        plant.step_joints(&q, 0.01).unwrap();
+    for config in every_family() {
+        let mut plant = Plant::new(&robot, &config, 3);
+        let lim = robot.config.limits.clone();
+        for q in [lim.q_min_deg, lim.q_max_deg, [60.0, -60.0, 44.0, -50.0, 50.0]] {
+            let q = robot.clamp_to_limits(&q);
+            plant.step_joints(&q, 0.01).unwrap();
+        }
     }
 }
 

@@ -7,8 +7,12 @@ use bowden_plant::{Plant, PlantConfig};
 use common::{commands, state_bytes};
 
 fn run(seed: u64, cmds: &[[f64; 5]]) -> Vec<u8> {
+    run_config(&PlantConfig::paper_default(), seed, cmds)
+}
+
+fn run_config(config: &PlantConfig, seed: u64, cmds: &[[f64; 5]]) -> Vec<u8> {
     let robot = Robot::paper_default();
-    let mut plant = Plant::new(&robot, &PlantConfig::paper_default(), seed);
+    let mut plant = Plant::new(&robot, config, seed);
     let mut trace = Vec::new();
     for q in cmds {
         let w = robot.cables().displacements_mm(q);
@@ -33,6 +37,44 @@ fn two_runs_give_identical_bytes() {
     assert_eq!(a, b, "same seed and commands must give the same bytes");
     let c = run(43, &cmds);
     assert_ne!(a, c, "another seed is another plant instance");
+}
+
+/// The same for the other hysteresis families: a seed is one manufactured unit of each.
+#[test]
+fn every_family_is_deterministic_per_unit() {
+    let robot = Robot::paper_default();
+    let cmds = commands(&robot, 12, 5);
+    for file in ["plant-boucwen.toml", "plant-lugre.toml"] {
+        let config = PlantConfig::load(format!("{}/../../configs/{file}", env!("CARGO_MANIFEST_DIR"))).unwrap();
+        let a = run_config(&config, 42, &cmds);
+        assert_eq!(a, run_config(&config, 42, &cmds), "{file}: same seed, same bytes");
+        assert_ne!(
+            a,
+            run_config(&config, 43, &cmds),
+            "{file}: another seed is another unit"
+        );
+        // Reset and clones replay the same way.
+        let mut plant = Plant::new(&robot, &config, 7);
+        let mut first = Vec::new();
+        for q in &cmds[..6] {
+            plant.settle_joints(q, 0.2, 0.01).unwrap();
+            first.extend(state_bytes(&plant));
+        }
+        let mut clone = plant.clone();
+        plant.reset();
+        assert_eq!(plant.t_sim_ns(), 0);
+        let mut second = Vec::new();
+        for q in &cmds[..6] {
+            plant.settle_joints(q, 0.2, 0.01).unwrap();
+            second.extend(state_bytes(&plant));
+        }
+        assert_eq!(first, second, "{file}: reset replays");
+        for q in &cmds[6..] {
+            plant.settle_joints(q, 0.2, 0.01).unwrap();
+            clone.settle_joints(q, 0.2, 0.01).unwrap();
+            assert_eq!(state_bytes(&plant), state_bytes(&clone), "{file}: clones");
+        }
+    }
 }
 
 #[test]

@@ -38,13 +38,30 @@ static GLOBAL: Counting = Counting;
 
 #[test]
 fn step_settle_and_errors_do_not_allocate() {
-    use bowden_kinematics::Robot;
-    use bowden_plant::{Plant, PlantConfig};
-
-    let robot = Robot::paper_default();
+    use bowden_plant::PlantConfig;
     let mut cfg = PlantConfig::paper_default();
     cfg.drift.rate_mm_per_hour = [0.2; 10]; // exercise the creep path too
-    let mut plant = Plant::new(&robot, &cfg, 1);
+    real_time_path_does_not_allocate(&cfg);
+}
+
+/// The same for the other hysteresis families (configs/plant-boucwen.toml, plant-lugre.toml).
+#[test]
+fn every_family_steps_without_allocating() {
+    use bowden_plant::PlantConfig;
+    for file in ["plant-boucwen.toml", "plant-lugre.toml"] {
+        let path = format!("{}/../../configs/{file}", env!("CARGO_MANIFEST_DIR"));
+        let mut cfg = PlantConfig::load(&path).unwrap();
+        cfg.drift.rate_mm_per_hour = [0.2; 10];
+        real_time_path_does_not_allocate(&cfg);
+    }
+}
+
+fn real_time_path_does_not_allocate(cfg: &bowden_plant::PlantConfig) {
+    use bowden_kinematics::Robot;
+    use bowden_plant::Plant;
+
+    let robot = Robot::paper_default();
+    let mut plant = Plant::new(&robot, cfg, 1);
     let cmds: Vec<[f64; 10]> = bowden_trajectory::dataset_commands(&robot, 20, 4)
         .iter()
         .map(|q| robot.cables().displacements_mm(q))
@@ -68,7 +85,8 @@ fn step_settle_and_errors_do_not_allocate() {
     assert_eq!(
         after - before,
         0,
-        "the plant allocated {} times in its real-time path",
+        "the plant `{}` allocated {} times in its real-time path",
+        cfg.name,
         after - before
     );
 }

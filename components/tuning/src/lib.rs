@@ -4,8 +4,9 @@
 //!
 //! What is chosen, and from what:
 //! - **the history step** (the joint-space distance the desired command must travel before
-//!   the models' history advances): the median |Δq_cmd| of consecutive training commands,
-//!   the spacing the models learned one time step to be (3·√5° for eq. 16 exactly);
+//!   the models' history advances): the grid of the training commands — the most frequent
+//!   |Δq_cmd| between consecutive commands (3·√5° for eq. 16, also under `mixed`'s dither),
+//!   the spacing the models learned one time step to be ([`command_spacing_deg`]);
 //! - **the model pair** (one forward and one inverse among those trained, e.g. TCN and LSTM),
 //!   **the mode** (Algorithm 1 or Gauss–Newton) and **newton's prior weight μ**: every
 //!   combination is replayed on the validation stretch of the dataset — the path the robot
@@ -67,6 +68,9 @@ pub struct TuneOptions {
     /// Newton's prior weights to try; σ_f/σ_i (the MAP weight from the validation RMSEs) is
     /// added for every pair.
     pub prior_weights: Vec<f64>,
+    /// Forward models used only to rate the candidates (e.g. an LSTM too slow for the 1 kHz
+    /// cycle judging the TCN pair that will run in it).
+    pub judges: Vec<PathBuf>,
 }
 
 impl Default for TuneOptions {
@@ -76,6 +80,7 @@ impl Default for TuneOptions {
             max_steps: 1000,
             modes: vec![Mode::Paper, Mode::Newton],
             prior_weights: vec![0.0, 0.5, 1.0, 2.0],
+            judges: Vec::new(),
         }
     }
 }
@@ -117,11 +122,14 @@ pub struct TuneReport {
     pub validation_samples: usize,
     pub warmup_steps: usize,
     pub replayed_steps: usize,
-    /// Median |Δq_cmd| of consecutive training commands, deg.
+    /// The training commands' grid step (see [`command_spacing_deg`]), deg.
     pub step_deg: f64,
     pub forward: Vec<ModelScore>,
     pub inverse: Vec<ModelScore>,
-    /// Which forward models judged each forward model's candidates (indices into `forward`).
+    /// Forward models that only judged (`TuneOptions::judges`).
+    pub judge_only: Vec<ModelScore>,
+    /// Which forward models judged each forward model's candidates: indices into `forward`,
+    /// then `judge_only` (index `forward.len() + k`).
     pub judges: Vec<Vec<usize>>,
     /// The judged error of sending the targets unchanged (the bar every mode must beat).
     pub uncalibrated_judged_rmse_deg: Vec<f64>,
@@ -139,8 +147,11 @@ pub struct TuneOutcome {
     pub model_inv: PathBuf,
 }
 
-/// Median Euclidean joint-space step between consecutive training commands (deg), ignoring
-/// repeats (a held command is not a step).
+/// The models' time step in joint space, from the training commands themselves: the most
+/// frequent Euclidean step between consecutive commands (to 0.01°), the grid the data was laid
+/// on — eq. (16)'s 3·√5° for `collect`, whatever spacing a real robot's log used. Dither and
+/// jumps spread their steps over many values and do not move the mode; where no step value
+/// holds ≥ 5 % of the steps (no grid), the median. Repeats (a held command) are ignored.
 pub fn command_spacing_deg(ds: &Dataset, train: &[usize]) -> Option<f64> {
     let mut steps: Vec<f64> = train
         .windows(2)
@@ -156,6 +167,24 @@ pub fn command_spacing_deg(ds: &Dataset, train: &[usize]) -> Option<f64> {
     }
     steps.sort_by(|a, b| a.total_cmp(b));
     let n = steps.len();
+    // Runs of equal 0.01° bins over the sorted steps; the longest wins (ties: the smallest step).
+    let bin = |v: f64| (v * 100.0).round() as i64;
+    let (mut best, mut best_len) = (0usize, 0usize);
+    let mut k = 0;
+    while k < n {
+        let mut e = k + 1;
+        while e < n && bin(steps[e]) == bin(steps[k]) {
+            e += 1;
+        }
+        if e - k > best_len {
+            (best, best_len) = (k, e - k);
+        }
+        k = e;
+    }
+    if best_len * 20 >= n {
+        // The mean of the modal bin: exact for a grid (every member equal).
+        return Some(steps[best..best + best_len].iter().sum::<f64>() / best_len as f64);
+    }
     Some(if n % 2 == 1 {
         steps[n / 2]
     } else {
@@ -201,7 +230,8 @@ fn val_rmse(model: &Model, ds: &Dataset, val: &[usize], max: usize) -> (f64, usi
     let j = ds.joints;
     let l = model.seq_len();
     let forward = model.metadata().direction == bowden_compensator::contract::Direction::Forward;
-    let (input, target): (fn(&Dataset, usize) -> &[f64], fn(&Dataset, usize) -> &[f64]) = if forward {
+    type Column = fn(&Dataset, usize) -> &[f64];
+    let (input, target): (Column, Column) = if forward {
         (Dataset::cmd, Dataset::phy)
     } else {
         (Dataset::phy, Dataset::cmd)
@@ -228,7 +258,11 @@ fn val_rmse(model: &Model, ds: &Dataset, val: &[usize], max: usize) -> (f64, usi
         }
         ev.set_history(&hist);
         ev.eval(input(ds, t), &mut out);
-        se += out.iter().zip(target(ds, t)).map(|(a, b)| (a - b) * (a - b)).sum::<f64>();
+        se += out
+            .iter()
+            .zip(target(ds, t))
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum::<f64>();
         n += 1;
     }
     (((se / (n * j).max(1) as f64).sqrt()), n)
@@ -252,7 +286,13 @@ struct ReplayResult {
 
 impl Replay<'_> {
     /// Runs `cfg` with the models through the replay; rates what it sent with each judge.
-    fn run(&self, cfg: &ControllerConfig, fwd: &Model, inv: &Model, judges: &[&Model]) -> Result<ReplayResult, TuneError> {
+    fn run(
+        &self,
+        cfg: &ControllerConfig,
+        fwd: &Model,
+        inv: &Model,
+        judges: &[&Model],
+    ) -> Result<ReplayResult, TuneError> {
         let j = self.ds.joints;
         let mut comp = Compensator::from_models(cfg, self.robot, Some(fwd.clone()), Some(inv.clone()))?;
         let rows = judges.iter().map(|m| m.seq_len() - 1).max().unwrap_or(0);
@@ -280,9 +320,7 @@ impl Replay<'_> {
                 }
                 n += 1;
                 if out.has_prediction {
-                    se_self += (0..j)
-                        .map(|c| (out.q_predicted_deg[c] - q_des[c]).powi(2))
-                        .sum::<f64>();
+                    se_self += (0..j).map(|c| (out.q_predicted_deg[c] - q_des[c]).powi(2)).sum::<f64>();
                     n_self += 1;
                 }
             }
@@ -345,6 +383,7 @@ pub fn tune(
     base.validate().map_err(|e| TuneError::BaseConfig(e.to_string()))?;
     let fwd = load(forward, D::Forward)?;
     let inv = load(inverse, D::Inverse)?;
+    let judge_models = load(&opts.judges, D::Forward)?;
 
     let split = WindowSet::build(ds, LearnDirection::Forward, 1, opts.split, PhySource::Vision)
         .map_err(|e| TuneError::Split(e.to_string()))?;
@@ -366,10 +405,17 @@ pub fn tune(
         }
     };
     let fwd_scores: Vec<ModelScore> = fwd.iter().map(score).collect();
+    let judge_scores: Vec<ModelScore> = judge_models.iter().map(score).collect();
     let inv_scores: Vec<ModelScore> = inv.iter().map(score).collect();
 
     // The replay: the models' longest history as warm-up context before the validation stretch.
-    let warm = fwd.iter().chain(&inv).map(|m| m.seq_len() - 1).max().unwrap_or(0);
+    let warm = fwd
+        .iter()
+        .chain(&inv)
+        .chain(&judge_models)
+        .map(|m| m.seq_len() - 1)
+        .max()
+        .unwrap_or(0);
     let v0 = split.val[0];
     let scored: Vec<usize> = split.val.iter().copied().take(opts.max_steps).collect();
     let steps: Vec<usize> = (v0.saturating_sub(warm)..v0).chain(scored.iter().copied()).collect();
@@ -379,9 +425,11 @@ pub fn tune(
         warmup: v0 - v0.saturating_sub(warm),
         steps,
     };
+    // Every forward model but the candidate's own, and the judge-only ones.
+    let raters: Vec<&Model> = fwd.iter().chain(&judge_models).collect();
     let judges: Vec<Vec<usize>> = (0..fwd.len())
         .map(|i| {
-            let others: Vec<usize> = (0..fwd.len()).filter(|&k| k != i).collect();
+            let others: Vec<usize> = (0..raters.len()).filter(|&k| k != i).collect();
             if others.is_empty() {
                 vec![i]
             } else {
@@ -405,13 +453,13 @@ pub fn tune(
 
     // The plan, in a fixed order.
     let mut plan: Vec<(usize, usize, Mode, Option<f64>)> = Vec::new();
-    for fi in 0..fwd.len() {
-        for ii in 0..inv.len() {
+    for (fi, fs) in fwd_scores.iter().enumerate() {
+        for (ii, is) in inv_scores.iter().enumerate() {
             for &mode in &opts.modes {
                 match mode {
                     Mode::Newton => {
                         let mut mus = opts.prior_weights.clone();
-                        let map = fwd_scores[fi].val_rmse_deg / inv_scores[ii].val_rmse_deg;
+                        let map = fs.val_rmse_deg / is.val_rmse_deg;
                         if map.is_finite() {
                             mus.push((map * 1000.0).round() / 1000.0);
                         }
@@ -432,7 +480,7 @@ pub fn tune(
     for fi in 0..fwd.len() {
         let mut cfg = replay_cfg.clone();
         cfg.mode = Mode::Uncalibrated;
-        let js: Vec<&Model> = judges[fi].iter().map(|&k| &fwd[k]).collect();
+        let js: Vec<&Model> = judges[fi].iter().map(|&k| raters[k]).collect();
         let r = replay.run(&cfg, &fwd[fi], &inv[0], &js)?;
         uncal.push(mean(&r.judged));
         done += 1;
@@ -446,7 +494,7 @@ pub fn tune(
         if let Some(mu) = mu {
             cfg.newton.prior_weight = mu;
         }
-        let js: Vec<&Model> = judges[fi].iter().map(|&k| &fwd[k]).collect();
+        let js: Vec<&Model> = judges[fi].iter().map(|&k| raters[k]).collect();
         let r = replay.run(&cfg, &fwd[fi], &inv[ii], &js)?;
         candidates.push(Candidate {
             forward: fi,
@@ -503,6 +551,7 @@ pub fn tune(
         step_deg,
         forward: fwd_scores,
         inverse: inv_scores,
+        judge_only: judge_scores,
         judges,
         uncalibrated_judged_rmse_deg: uncal,
         candidates,
@@ -528,7 +577,12 @@ fn mean(v: &[f64]) -> f64 {
 /// The chosen settings as a controller config file: the base file's tables with the chosen
 /// values written over them, `model_fwd`/`model_inv` as `fwd_name`/`inv_name` (paths as they
 /// should appear in the file), and a header saying how every value was chosen.
-pub fn config_toml(base_text: &str, outcome: &TuneOutcome, fwd_name: &str, inv_name: &str) -> Result<String, TuneError> {
+pub fn config_toml(
+    base_text: &str,
+    outcome: &TuneOutcome,
+    fwd_name: &str,
+    inv_name: &str,
+) -> Result<String, TuneError> {
     use toml::Value;
     let mut doc: toml::Table = toml::from_str(base_text).map_err(|e| TuneError::BaseConfig(e.to_string()))?;
     let c = &outcome.config;
@@ -560,7 +614,7 @@ pub fn config_toml(base_text: &str, outcome: &TuneOutcome, fwd_name: &str, inv_n
     head.push_str("# never on test paths; docs/architecture.md, \"Settings chosen by the tool\"). tune.json beside\n");
     head.push_str("# this file holds every candidate.\n#\n");
     head.push_str(&format!(
-        "# history.step_deg = {:.4}: the median |Δq_cmd| of consecutive training commands.\n",
+        "# history.step_deg = {:.4}: the grid of the training commands (most frequent |Δq_cmd|).\n",
         r.step_deg
     ));
     for (k, s) in r.forward.iter().enumerate() {
@@ -571,6 +625,16 @@ pub fn config_toml(base_text: &str, outcome: &TuneOutcome, fwd_name: &str, inv_n
             s.seq_len,
             s.val_rmse_deg,
             s.windows
+        ));
+    }
+    for (k, s) in r.judge_only.iter().enumerate() {
+        head.push_str(&format!(
+            "# judge #{}: {} ({} L={}), validation RMSE {:.3}° (rates candidates only)\n",
+            r.forward.len() + k,
+            name_of(&s.path),
+            s.architecture,
+            s.seq_len,
+            s.val_rmse_deg
         ));
     }
     for (k, s) in r.inverse.iter().enumerate() {

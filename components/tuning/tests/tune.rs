@@ -90,6 +90,19 @@ fn settings_come_from_validation_data_and_reproduce_bit_for_bit() {
     assert_eq!(cfg.history.step_deg, spacing);
     assert_eq!(cfg.newton.prior_weight, a.config.newton.prior_weight);
     assert!(ta.starts_with("# Controller settings chosen by `bowden tune`"));
+
+    // A judge-only model (one too slow for the cycle) rates the only forward model's candidates.
+    let solo = TuneOptions {
+        judges: vec![fwd[1].clone()],
+        ..opts.clone()
+    };
+    let c = tune(&ds, &fwd[..1], &inv, &base, &robot, &solo, &mut |_, _| {}).unwrap();
+    assert_eq!(c.report.judges, vec![vec![1]]);
+    assert_eq!(c.report.judge_only.len(), 1);
+    // The same judge on the same candidates: the scores of forward #0's candidates above.
+    for (x, y) in c.report.candidates.iter().zip(&a.report.candidates) {
+        assert_eq!(x.judged_rmse_deg, y.judged_rmse_deg);
+    }
 }
 
 #[test]
@@ -102,9 +115,17 @@ fn wrong_inputs_are_named() {
     let robot = Robot::paper_default();
     let opts = TuneOptions::default();
     // An inverse model passed as forward.
-    let e = tune(&ds, std::slice::from_ref(&i), std::slice::from_ref(&i), &base, &robot, &opts, &mut |_, _| {})
-        .err()
-        .unwrap();
+    let e = tune(
+        &ds,
+        std::slice::from_ref(&i),
+        std::slice::from_ref(&i),
+        &base,
+        &robot,
+        &opts,
+        &mut |_, _| {},
+    )
+    .err()
+    .unwrap();
     assert!(matches!(e, TuneError::Direction { .. }), "{e}");
     assert!(e.to_string().contains("fnn_inverse.onnx"), "{e}");
     let e = tune(&ds, &[], std::slice::from_ref(&i), &base, &robot, &opts, &mut |_, _| {})
@@ -115,8 +136,16 @@ fn wrong_inputs_are_named() {
         prior_weights: vec![f64::NAN],
         ..TuneOptions::default()
     };
-    let e = tune(&ds, std::slice::from_ref(&f), std::slice::from_ref(&i), &base, &robot, &bad, &mut |_, _| {})
-        .err()
-        .unwrap();
+    let e = tune(
+        &ds,
+        std::slice::from_ref(&f),
+        std::slice::from_ref(&i),
+        &base,
+        &robot,
+        &bad,
+        &mut |_, _| {},
+    )
+    .err()
+    .unwrap();
     assert!(e.to_string().contains("prior weight"), "{e}");
 }

@@ -83,4 +83,3 @@ pub fn supported(name: &str) -> Model {
     )
     .unwrap()
 }
-

@@ -1,0 +1,2165 @@
+//! `bowden bench transfer` (issue #12): how well the shipped recipe transfers to robots it has
+//! never seen. For each unit of several plant families it runs exactly what a user runs with a
+//! new robot — `bowden collect` through the vision loop, `bowden train` with the recipe,
+//! `bowden tune`, `bowden evaluate` — as subprocesses of this executable, without any per-unit
+//! tuning, and reports per unit, trajectory and controller the reduction of the tip position,
+//! tip orientation and joint errors against the uncalibrated robot, by vision and by truth.
+//!
+//! Units are split into tuning units (whatever was looked at while choosing the recipe) and
+//! held-out units (the only ones the results speak for). Units run in parallel (`--jobs`), and
+//! every step leaves a `UNIT/<step>.done` stamp (command, duration, hash of its inputs): a rerun
+//! skips finished steps and redoes unfinished or changed ones. A step's inputs are its command
+//! line, the files it reads (the unit's plant file, the pipeline's configs, the trajectories, the
+//! controller configs) and the stamps of the steps before it; the `bowden` binary itself is not
+//! one: after changing the code, use another `--out` (or remove the stamps).
+
+use anyhow::{anyhow, bail, Context, Result};
+use bowden_evaluation::metrics::reduction_pct;
+use bowden_evaluation::CONTROLLERS;
+use bowden_learning::dataset::fnv1a64_hex;
+use bowden_learning::Arch;
+use clap::{Args, Subcommand};
+use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
+use serde::{Deserialize, Serialize};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::Stdio;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+#[derive(Subcommand)]
+pub enum BenchCommand {
+    /// Transfer to unseen units (issue #12): collect, train, tune and evaluate each unit of
+    /// several plant families exactly as a user would (the `bowden` commands, as subprocesses;
+    /// parallel, resumable), then the error reduction per unit, trajectory and controller, by
+    /// vision and truth, as Markdown, JSON and SVG.
+    Transfer(TransferArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct TransferArgs {
+    /// Families, units and the recipe.
+    #[arg(long, default_value = "configs/transfer.toml")]
+    pub config: PathBuf,
+    /// Output directory: transfer.md, transfer.json, transfer.svg and units/FAMILY/unit-N/.
+    #[arg(long, default_value = "out/transfer")]
+    pub out: PathBuf,
+    /// Units run at once. collect and evaluate are lockstep pipelines that keep less than one
+    /// core busy (measured CPU/wall ≈ 0.7), so two units overlap well on 2 cores (two small
+    /// units: 107 s at --jobs 2, 207 s at --jobs 1); each training gets cores / jobs threads
+    /// (recipe.threads overrides).
+    #[arg(long, default_value_t = 2)]
+    pub jobs: usize,
+    /// Which units to run: the held-out ones (the results), the tuning ones, or all.
+    #[arg(long, value_enum, default_value_t = UnitSet::Heldout)]
+    pub units: UnitSet,
+    /// Only these families (names from the config, comma-separated).
+    #[arg(long, value_delimiter = ',')]
+    pub families: Vec<String>,
+    /// At most N units, taken in turn from each family.
+    #[arg(long)]
+    pub max_units: Option<usize>,
+    /// A tiny recipe for tests: 30 configurations, 2 epochs, L = 10, 1 repeat, 8 points per
+    /// trajectory. Its numbers say nothing about transfer; use another --out.
+    #[arg(long)]
+    pub quick: bool,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum UnitSet {
+    Tuning,
+    Heldout,
+    All,
+}
+
+pub fn bench(c: BenchCommand) -> Result<()> {
+    match c {
+        BenchCommand::Transfer(a) => transfer(a),
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Configuration
+
+/// `configs/transfer.toml`.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct TransferConfig {
+    /// Seed of every unit's `collect` (a user types the same command for every robot).
+    pub seed: u64,
+    pub recipe: Recipe,
+    #[serde(rename = "family")]
+    pub families: Vec<FamilySpec>,
+}
+
+/// What a user runs with a new robot, the same for every unit.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Recipe {
+    /// `collect --samples`: random configurations of eq. (16).
+    pub samples: usize,
+    /// `collect --excitation`: paper | mixed.
+    pub excitation: String,
+    /// `train --arch` for each (both directions each).
+    pub archs: Vec<String>,
+    /// `train --epochs`.
+    pub epochs: usize,
+    /// `train --early-stop`.
+    #[serde(default)]
+    pub early_stop: Option<usize>,
+    /// `train --seq-len`.
+    pub seq_len: usize,
+    /// `train --threads` (default: the machine's cores / --jobs); results do not depend on it.
+    #[serde(default)]
+    pub threads: Option<usize>,
+    /// `evaluate --repeats`.
+    pub repeats: u32,
+    /// `evaluate --trajectories`.
+    pub trajectories: Vec<String>,
+    /// `evaluate --controllers` (must include uncalibrated: the reference of every reduction).
+    pub controllers: Vec<String>,
+    /// `evaluate --max-points`.
+    #[serde(default)]
+    pub max_points: Option<usize>,
+    /// Run `bowden tune` (true) or use the base controller with the first trained pair (false).
+    pub tune: bool,
+    /// `tune --base`: the controller config the unit's is made from.
+    pub base_controller: PathBuf,
+}
+
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FamilySpec {
+    /// Name in the report and the output directory (default: the plant file's `family`, else
+    /// its file stem).
+    #[serde(default)]
+    pub name: Option<String>,
+    /// The family's plant file; each unit is it with `[variation] unit = N`.
+    pub plant: PathBuf,
+    /// Units looked at while choosing the recipe: never reported as results.
+    #[serde(default)]
+    pub tuning_units: Vec<u64>,
+    /// Units the results are reported on.
+    #[serde(default)]
+    pub heldout_units: Vec<u64>,
+}
+
+fn path_safe(s: &str) -> bool {
+    !s.is_empty()
+        && s.chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_' || c == '.')
+        && s != "."
+        && s != ".."
+}
+
+impl TransferConfig {
+    fn validate(&self) -> std::result::Result<(), String> {
+        let r = &self.recipe;
+        if r.samples < 2 {
+            return Err(format!(
+                "recipe.samples: need at least 2 random configurations, got {}",
+                r.samples
+            ));
+        }
+        if !["paper", "mixed"].contains(&r.excitation.as_str()) {
+            return Err(format!("recipe.excitation: `{}` is not paper or mixed", r.excitation));
+        }
+        if r.archs.is_empty() {
+            return Err("recipe.archs: name at least one architecture".into());
+        }
+        for (i, a) in r.archs.iter().enumerate() {
+            a.parse::<Arch>().map_err(|e| format!("recipe.archs[{i}]: {e}"))?;
+            if r.archs[..i].contains(a) {
+                return Err(format!("recipe.archs: `{a}` appears twice"));
+            }
+        }
+        if r.epochs == 0 {
+            return Err("recipe.epochs: must be at least 1".into());
+        }
+        if r.early_stop == Some(0) {
+            return Err("recipe.early_stop: must be at least 1 (or left out)".into());
+        }
+        if r.seq_len == 0 {
+            return Err("recipe.seq_len: must be at least 1".into());
+        }
+        if r.threads == Some(0) {
+            return Err("recipe.threads: must be at least 1 (or left out)".into());
+        }
+        if r.repeats == 0 {
+            return Err("recipe.repeats: must be at least 1".into());
+        }
+        if r.max_points == Some(0) {
+            return Err("recipe.max_points: must be at least 1 (or left out)".into());
+        }
+        if r.trajectories.is_empty() {
+            return Err("recipe.trajectories: name at least one trajectory".into());
+        }
+        for t in &r.trajectories {
+            if !path_safe(t) {
+                return Err(format!("recipe.trajectories: `{t}` is not a trajectory name"));
+            }
+        }
+        for c in &r.controllers {
+            if !CONTROLLERS.contains(&c.as_str()) {
+                return Err(format!(
+                    "recipe.controllers: unknown controller `{c}` (expected {})",
+                    CONTROLLERS.join(", ")
+                ));
+            }
+        }
+        if !r.controllers.iter().any(|c| c == "uncalibrated") {
+            return Err("recipe.controllers: must include uncalibrated (every reduction is against it)".into());
+        }
+        if !r.controllers.iter().any(|c| c != "uncalibrated") {
+            return Err("recipe.controllers: name at least one calibrated controller (paper, newton)".into());
+        }
+        if self.families.is_empty() {
+            return Err("family: give at least one [[family]]".into());
+        }
+        for (i, f) in self.families.iter().enumerate() {
+            if let Some(n) = &f.name {
+                if !path_safe(n) {
+                    return Err(format!(
+                        "family[{i}].name: `{n}` (use letters, digits, `-`, `_`: it names a directory)"
+                    ));
+                }
+            }
+            if f.tuning_units.is_empty() && f.heldout_units.is_empty() {
+                return Err(format!("family[{i}]: give tuning_units or heldout_units"));
+            }
+            for (field, list) in [("tuning_units", &f.tuning_units), ("heldout_units", &f.heldout_units)] {
+                for (k, u) in list.iter().enumerate() {
+                    if *u > i64::MAX as u64 {
+                        return Err(format!("family[{i}].{field}: unit {u} does not fit a TOML integer"));
+                    }
+                    if list[..k].contains(u) {
+                        return Err(format!("family[{i}].{field}: unit {u} appears twice"));
+                    }
+                }
+            }
+            if let Some(u) = f.tuning_units.iter().find(|u| f.heldout_units.contains(u)) {
+                return Err(format!(
+                    "family[{i}].heldout_units: unit {u} is also a tuning unit (a held-out unit must be unseen)"
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Recipe {
+    /// The `--quick` recipe: every step runs, cheaply.
+    fn quick(&self) -> Recipe {
+        Recipe {
+            samples: 30,
+            epochs: 2,
+            early_stop: None,
+            seq_len: 10,
+            repeats: 1,
+            max_points: Some(8),
+            ..self.clone()
+        }
+    }
+}
+
+/// The ancestor of `start` (inclusive) holding a `Cargo.toml`.
+fn find_root(start: &Path) -> Option<PathBuf> {
+    start
+        .ancestors()
+        .find(|d| d.join("Cargo.toml").is_file())
+        .map(Path::to_path_buf)
+}
+
+fn absolute(p: &Path) -> PathBuf {
+    if p.is_absolute() {
+        p.to_path_buf()
+    } else {
+        std::env::current_dir()
+            .map(|d| d.join(p))
+            .unwrap_or_else(|_| p.to_path_buf())
+    }
+}
+
+/// Relative paths: against the config file's directory, then the repository root, then the
+/// working directory (the first that exists; else the config file's directory).
+fn resolve(p: &Path, cfg_dir: &Path, root: Option<&Path>) -> PathBuf {
+    if p.is_absolute() {
+        return p.to_path_buf();
+    }
+    let mut candidates = vec![cfg_dir.join(p)];
+    if let Some(r) = root {
+        candidates.push(r.join(p));
+    }
+    candidates.push(absolute(p));
+    // Nothing there: name it under the repository root, where `configs/...` paths live.
+    let fallback = if root.is_some() { &candidates[1] } else { &candidates[0] };
+    let hit = candidates.iter().find(|c| c.exists()).unwrap_or(fallback);
+    std::fs::canonicalize(hit).unwrap_or_else(|_| hit.clone())
+}
+
+/// The family's display name in the plant file: `family = "..."` or `[family] name = "..."`.
+fn plant_family_label(plant: &Path) -> Option<String> {
+    let v: toml::Table = toml::from_str(&std::fs::read_to_string(plant).ok()?).ok()?;
+    match v.get("family")? {
+        toml::Value::String(s) => Some(s.clone()),
+        toml::Value::Table(t) => t.get("name")?.as_str().map(str::to_string),
+        _ => None,
+    }
+}
+
+fn file_stem(p: &Path) -> String {
+    p.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "plant".into())
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+enum Role {
+    Tuning,
+    HeldOut,
+}
+
+impl Role {
+    fn label(self) -> &'static str {
+        match self {
+            Role::Tuning => "tuning",
+            Role::HeldOut => "held-out",
+        }
+    }
+}
+
+/// One family as resolved for this run.
+#[derive(Debug, Clone, Serialize)]
+struct Family {
+    name: String,
+    /// The plant file's own family label (or its file stem).
+    model: String,
+    plant: PathBuf,
+    tuning_units: Vec<u64>,
+    heldout_units: Vec<u64>,
+}
+
+/// One unit to run.
+#[derive(Debug, Clone)]
+struct UnitPlan {
+    family: usize,
+    unit: u64,
+    role: Role,
+    dir: PathBuf,
+}
+
+// ---------------------------------------------------------------------------------------------
+// Steps, stamps, subprocesses
+
+/// `UNIT/<step>.done`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct Stamp {
+    step: String,
+    command: String,
+    inputs_hash: String,
+    /// Wall time.
+    seconds: f64,
+    /// CPU time (user + system) of the subprocess and the children it waited for.
+    #[serde(default)]
+    cpu_seconds: f64,
+    finished_unix_ms: u128,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+enum StepStatus {
+    Ran,
+    Skipped,
+    Failed,
+}
+
+#[derive(Debug, Clone, Serialize)]
+struct StepRecord {
+    step: String,
+    status: StepStatus,
+    /// Wall and CPU time of this run, or (skipped) of the run that made the stamp.
+    seconds: f64,
+    cpu_seconds: f64,
+    command: String,
+    log: Option<PathBuf>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+struct Failure {
+    step: String,
+    status: String,
+    log: Option<PathBuf>,
+    log_tail: Vec<String>,
+    hint: Option<String>,
+}
+
+/// What runs the step: a `bowden` subcommand, or an edit done here.
+enum Action<'a> {
+    Exe(Vec<String>),
+    Local(String, Box<dyn FnOnce() -> Result<()> + 'a>),
+}
+
+struct Ctx {
+    exe: PathBuf,
+    project: PathBuf,
+    recipe: Recipe,
+    seed: u64,
+    threads: usize,
+    base_controller: PathBuf,
+    config_file: PathBuf,
+    mp: MultiProgress,
+}
+
+fn quote(s: &str) -> String {
+    if !s.is_empty() && s.chars().all(|c| c.is_ascii_alphanumeric() || "-_./,=:+@".contains(c)) {
+        s.to_string()
+    } else {
+        format!("'{}'", s.replace('\'', r"'\''"))
+    }
+}
+
+fn command_line(args: &[String]) -> String {
+    std::iter::once("bowden".to_string())
+        .chain(args.iter().map(|a| quote(a)))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+fn now_ms() -> u128 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis())
+}
+
+/// Temp file + rename: a reader sees the old file or the new one, never half of one.
+fn write_atomic(path: &Path, text: &str) -> Result<()> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = PathBuf::from(tmp);
+    std::fs::write(&tmp, text).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
+}
+
+fn remove_any(p: &Path) -> std::io::Result<()> {
+    let r = if p.is_dir() {
+        std::fs::remove_dir_all(p)
+    } else {
+        std::fs::remove_file(p)
+    };
+    match r {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(e),
+        _ => Ok(()),
+    }
+}
+
+fn log_tail(log: &Path, n: usize) -> Vec<String> {
+    let text = std::fs::read_to_string(log).unwrap_or_default();
+    // Progress bars of a child redraw with carriage returns: keep the last state of a line.
+    let lines: Vec<String> = text
+        .lines()
+        .map(|l| l.rsplit('\r').next().unwrap_or("").trim_end().to_string())
+        .filter(|l| !l.is_empty())
+        .collect();
+    lines[lines.len().saturating_sub(n)..].to_vec()
+}
+
+/// Runs one unit's steps in order; stops at the first failure.
+struct UnitRunner<'a> {
+    ctx: &'a Ctx,
+    plan: &'a UnitPlan,
+    label: String,
+    bar: &'a ProgressBar,
+    records: Vec<StepRecord>,
+    stamps: std::collections::BTreeMap<String, Stamp>,
+    total_steps: usize,
+}
+
+impl UnitRunner<'_> {
+    fn stamp_path(&self, step: &str) -> PathBuf {
+        self.plan.dir.join(format!("{step}.done"))
+    }
+
+    /// Runs `step` unless its stamp says it finished with the same inputs: the arguments (the
+    /// unit's directory written `$UNIT`, `--threads` left out: results do not depend on it),
+    /// `extra` (contents of input files) and the stamps of the `upstream` steps it reads, and
+    /// its main product `outputs[0]` still exists. A (re)run first removes all `outputs`.
+    fn step(
+        &mut self,
+        step: &str,
+        action: Action<'_>,
+        extra: &str,
+        upstream: &[String],
+        outputs: &[PathBuf],
+    ) -> std::result::Result<(), Failure> {
+        let dir = self.plan.dir.display().to_string();
+        let (command, hashed) = match &action {
+            Action::Exe(args) => {
+                let mut view = Vec::new();
+                let mut skip = false;
+                for a in args {
+                    if std::mem::take(&mut skip) {
+                        continue;
+                    }
+                    if a == "--threads" {
+                        skip = true;
+                        continue;
+                    }
+                    view.push(a.replace(&dir, "$UNIT"));
+                }
+                (command_line(args), view.join("\u{1f}"))
+            }
+            Action::Local(desc, _) => (desc.clone(), desc.replace(&dir, "$UNIT")),
+        };
+        let mut h = format!("{step}\u{1e}{hashed}\u{1e}{extra}");
+        for u in upstream {
+            match self.stamps.get(u) {
+                Some(s) => {
+                    let _ = write!(h, "\u{1e}{u}={}@{}", s.inputs_hash, s.finished_unix_ms);
+                }
+                None => {
+                    let _ = write!(h, "\u{1e}{u}=none");
+                }
+            }
+        }
+        let hash = fnv1a64_hex(h.as_bytes());
+        let stamp_path = self.stamp_path(step);
+        let k = self.records.len() + 1;
+        self.bar.set_message(format!("{step} ({k}/{})", self.total_steps));
+        if let Some(s) = std::fs::read_to_string(&stamp_path)
+            .ok()
+            .and_then(|t| serde_json::from_str::<Stamp>(&t).ok())
+        {
+            if s.inputs_hash == hash && outputs.first().is_none_or(|o| o.exists()) {
+                self.records.push(StepRecord {
+                    step: step.into(),
+                    status: StepStatus::Skipped,
+                    seconds: s.seconds,
+                    cpu_seconds: s.cpu_seconds,
+                    command: s.command.clone(),
+                    log: None,
+                });
+                self.stamps.insert(step.into(), s);
+                return Ok(());
+            }
+        }
+        let fail = |status: String, log: Option<PathBuf>, hint: Option<String>| {
+            let log_tail = log.as_deref().map(|l| log_tail(l, 15)).unwrap_or_default();
+            Failure {
+                step: step.into(),
+                status,
+                log,
+                log_tail,
+                hint,
+            }
+        };
+        // Unfinished or stale: the stamp goes first, then whatever a partial run left.
+        let _ = remove_any(&stamp_path);
+        for o in outputs {
+            remove_any(o).map_err(|e| fail(format!("removing {}: {e}", o.display()), None, None))?;
+        }
+        let logs = self.plan.dir.join("logs");
+        std::fs::create_dir_all(&logs).map_err(|e| fail(format!("creating {}: {e}", logs.display()), None, None))?;
+        let log = logs.join(format!("{step}.log"));
+        let t0 = Instant::now();
+        let mut cpu_seconds = 0.0;
+        match action {
+            Action::Exe(args) => {
+                let run = || -> std::io::Result<(std::process::ExitStatus, f64)> {
+                    use std::io::Write as _;
+                    let mut f = std::fs::File::create(&log)?;
+                    writeln!(
+                        f,
+                        "$ cd {} && {}",
+                        quote(&self.ctx.project.display().to_string()),
+                        command
+                    )?;
+                    let f2 = f.try_clone()?;
+                    run_measured(
+                        std::process::Command::new(&self.ctx.exe)
+                            .args(&args)
+                            .current_dir(&self.ctx.project)
+                            .stdin(Stdio::null())
+                            .stdout(f)
+                            .stderr(f2),
+                    )
+                };
+                let (status, cpu) = run().map_err(|e| fail(format!("could not run: {e}"), Some(log.clone()), None))?;
+                if !status.success() {
+                    let text = std::fs::read_to_string(&log).unwrap_or_default();
+                    let hint = (text.contains("unrecognized subcommand")
+                        && args.first().map(String::as_str) == Some("tune"))
+                    .then(|| {
+                        format!(
+                            "this bowden has no `tune` subcommand: set `recipe.tune = false` in {}",
+                            self.ctx.config_file.display()
+                        )
+                    });
+                    return Err(fail(status.to_string(), Some(log), hint));
+                }
+                cpu_seconds = cpu;
+            }
+            Action::Local(desc, f) => {
+                let r = f();
+                let _ = std::fs::write(
+                    &log,
+                    format!(
+                        "{desc}\n{}\n",
+                        r.as_ref().map_or_else(|e| format!("error: {e:#}"), |_| "done".into())
+                    ),
+                );
+                if let Err(e) = r {
+                    return Err(fail(format!("error: {e:#}"), Some(log), None));
+                }
+            }
+        }
+        let seconds = t0.elapsed().as_secs_f64();
+        let stamp = Stamp {
+            step: step.into(),
+            command: command.clone(),
+            inputs_hash: hash,
+            seconds,
+            cpu_seconds,
+            finished_unix_ms: now_ms(),
+        };
+        let text = serde_json::to_string_pretty(&stamp).unwrap_or_default();
+        write_atomic(&stamp_path, &text).map_err(|e| fail(format!("{e:#}"), Some(log.clone()), None))?;
+        self.ctx
+            .mp
+            .suspend(|| eprintln!("{}: {step} {seconds:.1} s (CPU {cpu_seconds:.1} s)", self.label));
+        self.records.push(StepRecord {
+            step: step.into(),
+            status: StepStatus::Ran,
+            seconds,
+            cpu_seconds,
+            command,
+            log: Some(log),
+        });
+        self.stamps.insert(step.into(), stamp);
+        Ok(())
+    }
+}
+
+/// Runs `cmd` to its end: its exit status and the CPU time (user + system, s) it and the
+/// children it waited for used.
+fn run_measured(cmd: &mut std::process::Command) -> std::io::Result<(std::process::ExitStatus, f64)> {
+    use std::os::unix::process::ExitStatusExt as _;
+    let child = cmd.spawn()?;
+    let pid = child.id() as libc::pid_t;
+    let mut status = 0;
+    // SAFETY: `rusage` is plain old data, for which all zeroes is a valid value.
+    let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
+    loop {
+        // SAFETY: waits for our own child, writing into the two locals above.
+        let r = unsafe { libc::wait4(pid, &mut status, 0, &mut ru) };
+        if r == pid {
+            break;
+        }
+        let e = std::io::Error::last_os_error();
+        if e.kind() != std::io::ErrorKind::Interrupted {
+            return Err(e);
+        }
+    }
+    // Reaped above; dropping a `Child` neither waits nor kills.
+    drop(child);
+    let secs = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    Ok((
+        std::process::ExitStatus::from_raw(status),
+        secs(ru.ru_utime) + secs(ru.ru_stime),
+    ))
+}
+
+fn read_text(p: &Path) -> String {
+    std::fs::read_to_string(p).unwrap_or_default()
+}
+
+/// The family's plant file with `[variation] unit = N`.
+fn unit_plant_text(family_plant: &Path, unit: u64) -> Result<String> {
+    let text = std::fs::read_to_string(family_plant).with_context(|| format!("reading {}", family_plant.display()))?;
+    let mut t: toml::Table = toml::from_str(&text).with_context(|| format!("parsing {}", family_plant.display()))?;
+    let var = t
+        .entry("variation")
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    let Some(var) = var.as_table_mut() else {
+        bail!("{}: `variation` is not a table", family_plant.display());
+    };
+    var.insert("unit".into(), toml::Value::Integer(i64::try_from(unit)?));
+    Ok(format!(
+        "# {} as manufactured unit {unit} (written by `bowden bench transfer`).\n{}",
+        family_plant.display(),
+        toml::to_string(&t)?
+    ))
+}
+
+/// `recipe.tune = false`: the base controller with the unit's first forward/inverse models.
+fn controller_from_base(base: &Path, fwd: &Path, inv: &Path, out: &Path) -> Result<()> {
+    let text = std::fs::read_to_string(base).with_context(|| format!("reading {}", base.display()))?;
+    let mut t: toml::Table = toml::from_str(&text).with_context(|| format!("parsing {}", base.display()))?;
+    for (k, p) in [("model_fwd", fwd), ("model_inv", inv)] {
+        t.insert(k.into(), toml::Value::String(absolute(p).display().to_string()));
+    }
+    write_atomic(
+        out,
+        &format!(
+            "# {} with this unit's models (written by `bowden bench transfer`, recipe.tune = false).\n{}",
+            base.display(),
+            toml::to_string(&t)?
+        ),
+    )
+}
+
+fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) -> UnitOutcome {
+    let fam = &families[plan.family];
+    let label = format!("{}/unit-{}", fam.name, plan.unit);
+    let r = &ctx.recipe;
+    let mut runner = UnitRunner {
+        ctx,
+        plan,
+        label: label.clone(),
+        bar,
+        records: Vec::new(),
+        stamps: Default::default(),
+        total_steps: 3 + 2 * r.archs.len(),
+    };
+    let t0 = Instant::now();
+    let result = (|| -> std::result::Result<Vec<Row>, Failure> {
+        let dir = &plan.dir;
+        let local_fail = |step: &str, e: String| Failure {
+            step: step.into(),
+            status: e,
+            log: None,
+            log_tail: Vec::new(),
+            hint: None,
+        };
+        // 1. The unit's plant file (rewritten only when it changes).
+        let plant = dir.join("plant.toml");
+        let text = unit_plant_text(&fam.plant, plan.unit).map_err(|e| local_fail("plant", format!("{e:#}")))?;
+        std::fs::create_dir_all(dir).map_err(|e| local_fail("plant", format!("creating {}: {e}", dir.display())))?;
+        if read_text(&plant) != text {
+            write_atomic(&plant, &text).map_err(|e| local_fail("plant", format!("{e:#}")))?;
+        }
+        let s = |p: &Path| p.display().to_string();
+        // 2. Collect through the vision loop.
+        let data = dir.join("data");
+        let collect = vec![
+            "collect".into(),
+            "--plant".into(),
+            s(&plant),
+            "--samples".into(),
+            r.samples.to_string(),
+            "--seed".into(),
+            ctx.seed.to_string(),
+            "--excitation".into(),
+            r.excitation.clone(),
+            "--out".into(),
+            s(&data),
+        ];
+        // The pipeline's own files (the subcommands' defaults) are inputs too.
+        let pipeline_text = ["evaluate.toml", "robot.toml", "camera.toml", "markers.toml"]
+            .iter()
+            .map(|f| read_text(&ctx.project.join("configs").join(f)))
+            .collect::<String>();
+        let collect_inputs = format!("{text}{pipeline_text}");
+        runner.step(
+            "collect",
+            Action::Exe(collect),
+            &collect_inputs,
+            &[],
+            std::slice::from_ref(&data),
+        )?;
+        // 3. Train every architecture in both directions.
+        let models = dir.join("models");
+        let _ = std::fs::create_dir_all(&models);
+        let (mut fwd, mut inv) = (Vec::new(), Vec::new());
+        let mut trained = Vec::new();
+        for arch in &r.archs {
+            for direction in ["forward", "inverse"] {
+                let model = models.join(format!("{arch}_{direction}_L{}.onnx", r.seq_len));
+                let (json, svg) = bowden_learning::report::sidecar_paths(&model);
+                let mut args: Vec<String> = vec![
+                    "train".into(),
+                    "--arch".into(),
+                    arch.clone(),
+                    "--direction".into(),
+                    direction.into(),
+                    "--seq-len".into(),
+                    r.seq_len.to_string(),
+                    "--epochs".into(),
+                    r.epochs.to_string(),
+                ];
+                if let Some(e) = r.early_stop {
+                    args.extend(["--early-stop".into(), e.to_string()]);
+                }
+                args.extend([
+                    "--threads".into(),
+                    ctx.threads.to_string(),
+                    "--data".into(),
+                    s(&data),
+                    "--out".into(),
+                    s(&model),
+                ]);
+                let name = format!("train-{arch}-{direction}");
+                runner.step(
+                    &name,
+                    Action::Exe(args),
+                    "",
+                    &["collect".into()],
+                    &[model.clone(), json, svg],
+                )?;
+                trained.push(name);
+                if direction == "forward" {
+                    fwd.push(model);
+                } else {
+                    inv.push(model);
+                }
+            }
+        }
+        // 4. Choose the settings.
+        let controller = dir.join("controller.toml");
+        let base_text = read_text(&ctx.base_controller);
+        let join = |v: &[PathBuf]| v.iter().map(|p| s(p)).collect::<Vec<_>>().join(",");
+        let action = if r.tune {
+            Action::Exe(vec![
+                "tune".into(),
+                "--data".into(),
+                s(&data),
+                "--forward".into(),
+                join(&fwd),
+                "--inverse".into(),
+                join(&inv),
+                "--base".into(),
+                s(&ctx.base_controller),
+                "--out".into(),
+                s(&controller),
+            ])
+        } else {
+            let (f, i, c, b) = (
+                fwd[0].clone(),
+                inv[0].clone(),
+                controller.clone(),
+                ctx.base_controller.clone(),
+            );
+            Action::Local(
+                format!(
+                    "recipe.tune = false: {} with model_fwd = {}, model_inv = {} → {}",
+                    b.display(),
+                    f.display(),
+                    i.display(),
+                    c.display()
+                ),
+                Box::new(move || controller_from_base(&b, &f, &i, &c)),
+            )
+        };
+        runner.step(
+            "tune",
+            action,
+            &base_text,
+            &trained,
+            &[controller.clone(), controller.with_extension("tune.json")],
+        )?;
+        // 5. Evaluate on the unseen trajectories.
+        let eval = dir.join("eval");
+        let summary = eval.join("summary.json");
+        let mut args: Vec<String> = vec![
+            "evaluate".into(),
+            "--plant".into(),
+            s(&plant),
+            "--controller-config".into(),
+            s(&controller),
+            "--repeats".into(),
+            r.repeats.to_string(),
+            "--trajectories".into(),
+            r.trajectories.join(","),
+            "--controllers".into(),
+            r.controllers.join(","),
+        ];
+        if let Some(n) = r.max_points {
+            args.extend(["--max-points".into(), n.to_string()]);
+        }
+        args.extend(["--report".into(), s(&eval), "--json".into(), s(&summary)]);
+        let eval_inputs = r
+            .trajectories
+            .iter()
+            .fold(format!("{text}{pipeline_text}{}", read_text(&controller)), |acc, t| {
+                acc + &read_text(&ctx.project.join("configs/trajectories").join(format!("{t}.toml")))
+            });
+        runner.step(
+            "evaluate",
+            Action::Exe(args),
+            &eval_inputs,
+            &["tune".into()],
+            &[summary.clone(), eval.clone()],
+        )?;
+        rows_from_summary(&summary, r).map_err(|e| local_fail("report", format!("{e:#}")))
+    })();
+    let wall = t0.elapsed().as_secs_f64();
+    let (rows, failure) = match result {
+        Ok(rows) => (rows, None),
+        Err(f) => (Vec::new(), Some(f)),
+    };
+    if let Some(f) = &failure {
+        if !runner.records.iter().any(|x| x.step == f.step) {
+            runner.records.push(StepRecord {
+                step: f.step.clone(),
+                status: StepStatus::Failed,
+                seconds: 0.0,
+                cpu_seconds: 0.0,
+                command: String::new(),
+                log: f.log.clone(),
+            });
+        }
+    }
+    UnitOutcome {
+        family: fam.name.clone(),
+        model: fam.model.clone(),
+        unit: plan.unit,
+        role: plan.role,
+        dir: plan.dir.clone(),
+        status: if failure.is_some() { "failed" } else { "ok" }.into(),
+        failure,
+        steps: runner.records,
+        wall_seconds: wall,
+        rows,
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Results
+
+/// The six errors of one (trajectory, controller), or their reductions in percent.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+struct Six {
+    position_vision: Option<f64>,
+    position_truth: Option<f64>,
+    orientation_vision: Option<f64>,
+    orientation_truth: Option<f64>,
+    joint_vision: Option<f64>,
+    joint_truth: Option<f64>,
+}
+
+/// (key, heading) of Six's fields, in order.
+const METRICS: [(&str, &str); 6] = [
+    ("position_vision", "position, vision"),
+    ("position_truth", "position, truth"),
+    ("orientation_vision", "orientation, vision"),
+    ("orientation_truth", "orientation, truth"),
+    ("joint_vision", "joint MAE, vision"),
+    ("joint_truth", "joint MAE, truth"),
+];
+
+impl Six {
+    fn get(&self, i: usize) -> Option<f64> {
+        [
+            self.position_vision,
+            self.position_truth,
+            self.orientation_vision,
+            self.orientation_truth,
+            self.joint_vision,
+            self.joint_truth,
+        ][i]
+    }
+
+    fn zip(a: &Six, b: &Six, f: impl Fn(f64, f64) -> f64) -> Six {
+        let g = |x: Option<f64>, y: Option<f64>| match (x, y) {
+            (Some(x), Some(y)) if x.is_finite() && y.is_finite() => Some(f(x, y)),
+            _ => None,
+        };
+        Six {
+            position_vision: g(a.position_vision, b.position_vision),
+            position_truth: g(a.position_truth, b.position_truth),
+            orientation_vision: g(a.orientation_vision, b.orientation_vision),
+            orientation_truth: g(a.orientation_truth, b.orientation_truth),
+            joint_vision: g(a.joint_vision, b.joint_vision),
+            joint_truth: g(a.joint_truth, b.joint_truth),
+        }
+    }
+}
+
+/// One (trajectory, calibrated controller) of a unit.
+#[derive(Debug, Clone, Serialize)]
+struct Row {
+    trajectory: String,
+    controller: String,
+    /// Mean tip position error (mm), orientation error (°), joint MAE averaged over joints (°).
+    error: Six,
+    uncalibrated: Six,
+    /// reduction_pct(uncalibrated, controller): + = better.
+    reduction_pct: Six,
+}
+
+#[derive(Debug, Clone, Serialize)]
+struct UnitOutcome {
+    family: String,
+    model: String,
+    unit: u64,
+    role: Role,
+    dir: PathBuf,
+    status: String,
+    failure: Option<Failure>,
+    steps: Vec<StepRecord>,
+    wall_seconds: f64,
+    rows: Vec<Row>,
+}
+
+#[derive(Deserialize)]
+struct SummaryIn {
+    cells: Vec<CellIn>,
+}
+
+#[derive(Deserialize)]
+struct CellIn {
+    trajectory: String,
+    controller: String,
+    task_vision: TaskIn,
+    task_truth: TaskIn,
+    joint_vision: JointIn,
+    joint_truth: JointIn,
+}
+
+#[derive(Deserialize)]
+struct TaskIn {
+    n: usize,
+    pos_mean_mm: Option<f64>,
+    rot_mean_deg: Option<f64>,
+}
+
+#[derive(Deserialize)]
+struct JointIn {
+    n: usize,
+    mae_deg: Vec<Option<f64>>,
+}
+
+impl CellIn {
+    fn six(&self) -> Six {
+        let task = |t: &TaskIn, f: fn(&TaskIn) -> Option<f64>| if t.n > 0 { f(t) } else { None };
+        let joint = |j: &JointIn| {
+            let v: Option<Vec<f64>> = j.mae_deg.iter().copied().collect();
+            v.filter(|v| j.n > 0 && !v.is_empty())
+                .map(|v| v.iter().sum::<f64>() / v.len() as f64)
+        };
+        Six {
+            position_vision: task(&self.task_vision, |t| t.pos_mean_mm),
+            position_truth: task(&self.task_truth, |t| t.pos_mean_mm),
+            orientation_vision: task(&self.task_vision, |t| t.rot_mean_deg),
+            orientation_truth: task(&self.task_truth, |t| t.rot_mean_deg),
+            joint_vision: joint(&self.joint_vision),
+            joint_truth: joint(&self.joint_truth),
+        }
+    }
+}
+
+fn rows_from_summary(path: &Path, r: &Recipe) -> Result<Vec<Row>> {
+    let s: SummaryIn =
+        serde_json::from_str(&std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?)
+            .with_context(|| format!("parsing {}", path.display()))?;
+    let cell = |t: &str, c: &str| s.cells.iter().find(|x| x.trajectory == t && x.controller == c);
+    let mut rows = Vec::new();
+    for t in &r.trajectories {
+        let u = cell(t, "uncalibrated")
+            .with_context(|| format!("{}: no uncalibrated cell for trajectory {t}", path.display()))?
+            .six();
+        for c in r.controllers.iter().filter(|c| *c != "uncalibrated") {
+            let e = cell(t, c)
+                .with_context(|| format!("{}: no cell for trajectory {t}, controller {c}", path.display()))?
+                .six();
+            rows.push(Row {
+                trajectory: t.clone(),
+                controller: c.clone(),
+                error: e,
+                uncalibrated: u,
+                reduction_pct: Six::zip(&u, &e, reduction_pct),
+            });
+        }
+    }
+    Ok(rows)
+}
+
+#[derive(Debug, Clone, Copy, Serialize)]
+struct Stat {
+    n: usize,
+    min: f64,
+    median: f64,
+    max: f64,
+}
+
+fn stat(mut v: Vec<f64>) -> Option<Stat> {
+    v.retain(|x| x.is_finite());
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    let median = if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    };
+    Some(Stat {
+        n,
+        min: v[0],
+        median,
+        max: v[n - 1],
+    })
+}
+
+/// min / median / max of each reduction over a family's (unit, trajectory) pairs.
+#[derive(Debug, Clone, Serialize)]
+struct FamilySummary {
+    family: String,
+    controller: String,
+    units: usize,
+    /// Keyed like `Six`'s fields.
+    reduction_pct: std::collections::BTreeMap<String, Stat>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+struct Violation {
+    family: String,
+    unit: u64,
+    trajectory: String,
+    metric: String,
+    reduction_pct: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+struct NeverWorse {
+    controller: String,
+    checks: usize,
+    violations: Vec<Violation>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+struct TimingRow {
+    family: String,
+    unit: u64,
+    collect: Option<StepTime>,
+    /// All `train-*` steps.
+    train: Option<StepTime>,
+    tune: Option<StepTime>,
+    evaluate: Option<StepTime>,
+    total: StepTime,
+    /// Steps whose time comes from an earlier run's stamp.
+    resumed: usize,
+}
+
+/// Wall and CPU seconds.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+struct StepTime {
+    seconds: f64,
+    cpu_seconds: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+struct Report {
+    config: PathBuf,
+    out: PathBuf,
+    project_dir: PathBuf,
+    quick: bool,
+    units_selected: UnitSet,
+    jobs: usize,
+    train_threads: usize,
+    cores: usize,
+    /// 1-minute load average when the run started (other work on the machine slows it).
+    load_average: Option<f64>,
+    seed: u64,
+    recipe: Recipe,
+    families: Vec<Family>,
+    /// The calibrated controller with the best median truth position reduction over the
+    /// held-out (unit, trajectory) pairs: the one plotted.
+    best_mode: Option<String>,
+    summary: Vec<FamilySummary>,
+    never_worse: Vec<NeverWorse>,
+    timing: Vec<TimingRow>,
+    units: Vec<UnitOutcome>,
+    wall_seconds: f64,
+}
+
+fn calibrated(r: &Recipe) -> Vec<String> {
+    r.controllers.iter().filter(|c| *c != "uncalibrated").cloned().collect()
+}
+
+fn summarise(units: &[&UnitOutcome], families: &[Family], r: &Recipe) -> Vec<FamilySummary> {
+    let mut out = Vec::new();
+    let groups: Vec<(String, Vec<&UnitOutcome>)> = families
+        .iter()
+        .map(|f| {
+            (
+                f.name.clone(),
+                units.iter().copied().filter(|u| u.family == f.name).collect(),
+            )
+        })
+        .chain(std::iter::once(("all".to_string(), units.to_vec())))
+        .collect();
+    for (name, us) in groups {
+        let us: Vec<&UnitOutcome> = us.into_iter().filter(|u| !u.rows.is_empty()).collect();
+        if us.is_empty() {
+            continue;
+        }
+        for c in calibrated(r) {
+            let mut m = std::collections::BTreeMap::new();
+            for (i, (key, _)) in METRICS.iter().enumerate() {
+                let v = us
+                    .iter()
+                    .flat_map(|u| &u.rows)
+                    .filter(|row| row.controller == c)
+                    .filter_map(|row| row.reduction_pct.get(i))
+                    .collect();
+                if let Some(s) = stat(v) {
+                    m.insert(key.to_string(), s);
+                }
+            }
+            out.push(FamilySummary {
+                family: name.clone(),
+                controller: c,
+                units: us.len(),
+                reduction_pct: m,
+            });
+        }
+    }
+    out
+}
+
+fn never_worse(units: &[&UnitOutcome], r: &Recipe) -> Vec<NeverWorse> {
+    calibrated(r)
+        .into_iter()
+        .map(|c| {
+            let mut checks = 0;
+            let mut violations = Vec::new();
+            for u in units {
+                for row in u.rows.iter().filter(|row| row.controller == c) {
+                    for (i, (key, _)) in METRICS.iter().enumerate() {
+                        if let Some(v) = row.reduction_pct.get(i) {
+                            checks += 1;
+                            if v < 0.0 {
+                                violations.push(Violation {
+                                    family: u.family.clone(),
+                                    unit: u.unit,
+                                    trajectory: row.trajectory.clone(),
+                                    metric: key.to_string(),
+                                    reduction_pct: v,
+                                });
+                            }
+                        }
+                    }
+                }
+            }
+            NeverWorse {
+                controller: c,
+                checks,
+                violations,
+            }
+        })
+        .collect()
+}
+
+fn best_mode(units: &[&UnitOutcome], r: &Recipe) -> Option<String> {
+    calibrated(r)
+        .into_iter()
+        .filter_map(|c| {
+            let v = units
+                .iter()
+                .flat_map(|u| &u.rows)
+                .filter(|row| row.controller == c)
+                .filter_map(|row| row.reduction_pct.position_truth)
+                .collect();
+            stat(v).map(|s| (c, s.median))
+        })
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(c, _)| c)
+}
+
+fn timing(units: &[UnitOutcome]) -> Vec<TimingRow> {
+    units
+        .iter()
+        .map(|u| {
+            let sum = |pred: &dyn Fn(&str) -> bool| -> Option<StepTime> {
+                let v: Vec<&StepRecord> = u
+                    .steps
+                    .iter()
+                    .filter(|s| pred(&s.step) && s.status != StepStatus::Failed)
+                    .collect();
+                (!v.is_empty()).then(|| StepTime {
+                    seconds: v.iter().map(|s| s.seconds).sum(),
+                    cpu_seconds: v.iter().map(|s| s.cpu_seconds).sum(),
+                })
+            };
+            let collect = sum(&|s| s == "collect");
+            let train = sum(&|s| s.starts_with("train-"));
+            let tune = sum(&|s| s == "tune");
+            let evaluate = sum(&|s| s == "evaluate");
+            TimingRow {
+                family: u.family.clone(),
+                unit: u.unit,
+                collect,
+                train,
+                tune,
+                evaluate,
+                total: {
+                    let parts = [collect, train, tune, evaluate];
+                    let parts = parts.iter().flatten();
+                    // `0.0 +`: an empty f64 sum is −0.0.
+                    StepTime {
+                        seconds: 0.0 + parts.clone().map(|t| t.seconds).sum::<f64>(),
+                        cpu_seconds: 0.0 + parts.map(|t| t.cpu_seconds).sum::<f64>(),
+                    }
+                },
+                resumed: u.steps.iter().filter(|s| s.status == StepStatus::Skipped).count(),
+            }
+        })
+        .collect()
+}
+
+// ---------------------------------------------------------------------------------------------
+// Markdown
+
+/// `p` relative to the project directory when inside it (reports need not name the machine).
+fn shown(project: &Path, p: &Path) -> String {
+    p.strip_prefix(project).unwrap_or(p).display().to_string()
+}
+
+fn pct(v: Option<f64>) -> String {
+    v.map_or_else(|| "—".into(), |v| format!("{v:+.1}"))
+}
+
+fn secs(v: Option<StepTime>) -> String {
+    v.map_or_else(|| "—".into(), |v| format!("{:.0} ({:.0})", v.seconds, v.cpu_seconds))
+}
+
+fn units_list(families: &[Family], pick: fn(&Family) -> &Vec<u64>) -> String {
+    let parts: Vec<String> = families
+        .iter()
+        .filter(|f| !pick(f).is_empty())
+        .map(|f| {
+            format!(
+                "{} {}",
+                f.name,
+                pick(f).iter().map(|u| u.to_string()).collect::<Vec<_>>().join(", ")
+            )
+        })
+        .collect();
+    if parts.is_empty() {
+        "none".into()
+    } else {
+        parts.join("; ")
+    }
+}
+
+fn reduction_table(out: &mut String, units: &[&UnitOutcome]) {
+    let _ = write!(out, "| family | unit | trajectory | controller |");
+    for (_, h) in METRICS {
+        let _ = write!(out, " {h} |");
+    }
+    let _ = writeln!(out, "\n|---|---|---|---|---|---|---|---|---|---|");
+    for u in units {
+        if let Some(f) = &u.failure {
+            let _ = writeln!(
+                out,
+                "| {} | {} | — | — | **failed** at step `{}` ({}) | | | | | |",
+                u.family, u.unit, f.step, f.status
+            );
+            continue;
+        }
+        for row in &u.rows {
+            let _ = write!(
+                out,
+                "| {} | {} | {} | {} |",
+                u.family, u.unit, row.trajectory, row.controller
+            );
+            for i in 0..METRICS.len() {
+                let _ = write!(out, " {} |", pct(row.reduction_pct.get(i)));
+            }
+            out.push('\n');
+        }
+    }
+    out.push('\n');
+}
+
+fn markdown(rep: &Report) -> String {
+    let mut out = String::new();
+    let r = &rep.recipe;
+    let _ = writeln!(out, "# Transfer to unseen units\n");
+    let _ = writeln!(
+        out,
+        "Every unit ran what a user runs with a new robot — `bowden collect` through the vision loop, \
+         `bowden train`, {}, `bowden evaluate` — with the same recipe and no per-unit tuning.{}\n",
+        if r.tune {
+            "`bowden tune`"
+        } else {
+            "the base controller with the unit's first trained pair (`recipe.tune = false`, no `bowden tune`)"
+        },
+        if rep.quick {
+            " **`--quick` recipe: a smoke test, the numbers say nothing about transfer.**"
+        } else {
+            ""
+        }
+    );
+    let _ = writeln!(
+        out,
+        "- **Held-out units** (the results below): {}",
+        units_list(&rep.families, |f| &f.heldout_units)
+    );
+    let _ = writeln!(
+        out,
+        "- **Tuning units** (looked at while choosing the recipe; never reported as results): {}",
+        units_list(&rep.families, |f| &f.tuning_units)
+    );
+    let ran: Vec<String> = rep.units.iter().map(|u| format!("{}/{}", u.family, u.unit)).collect();
+    let _ = writeln!(
+        out,
+        "- This run: `--units {}`, {} unit(s) ({}), {} at once, train threads {}; config `{}`, output `{}`.\n",
+        match rep.units_selected {
+            UnitSet::Tuning => "tuning",
+            UnitSet::Heldout => "heldout",
+            UnitSet::All => "all",
+        },
+        rep.units.len(),
+        ran.join(", "),
+        rep.jobs,
+        rep.train_threads,
+        shown(&rep.project_dir, &rep.config),
+        shown(&rep.project_dir, &rep.out)
+    );
+    let _ = writeln!(out, "## Recipe\n");
+    let _ = writeln!(
+        out,
+        "1. plant: the family's plant file with `[variation] unit = N`\n\
+         2. `bowden collect --samples {} --seed {} --excitation {}`\n\
+         3. `bowden train --seq-len {} --epochs {}{}` for {} × forward, inverse\n\
+         4. {}\n\
+         5. `bowden evaluate --repeats {} --trajectories {} --controllers {}{}` on the unit's plant\n",
+        r.samples,
+        rep.seed,
+        r.excitation,
+        r.seq_len,
+        r.epochs,
+        r.early_stop.map(|e| format!(" --early-stop {e}")).unwrap_or_default(),
+        r.archs.join(", "),
+        if r.tune {
+            format!(
+                "`bowden tune --base {}` with every trained model",
+                r.base_controller.display()
+            )
+        } else {
+            format!(
+                "controller: {} with the first forward/inverse pair (`recipe.tune = false`)",
+                r.base_controller.display()
+            )
+        },
+        r.repeats,
+        r.trajectories.join(","),
+        r.controllers.join(","),
+        r.max_points.map(|n| format!(" --max-points {n}")).unwrap_or_default(),
+    );
+    let _ = writeln!(out, "## Families\n");
+    let _ = writeln!(
+        out,
+        "| family | plant file | model | tuning units | held-out units |\n|---|---|---|---|---|"
+    );
+    for f in &rep.families {
+        let l = |v: &Vec<u64>| {
+            if v.is_empty() {
+                "—".into()
+            } else {
+                v.iter().map(|u| u.to_string()).collect::<Vec<_>>().join(", ")
+            }
+        };
+        let _ = writeln!(
+            out,
+            "| {} | {} | {} | {} | {} |",
+            f.name,
+            shown(&rep.project_dir, &f.plant),
+            f.model,
+            l(&f.tuning_units),
+            l(&f.heldout_units)
+        );
+    }
+    out.push('\n');
+    let held: Vec<&UnitOutcome> = rep.units.iter().filter(|u| u.role == Role::HeldOut).collect();
+    let tuning: Vec<&UnitOutcome> = rep.units.iter().filter(|u| u.role == Role::Tuning).collect();
+    let _ = writeln!(
+        out,
+        "## Held-out units: error reduction vs uncalibrated, % (+ = better)\n\n\
+         Mean tip position and orientation error and joint MAE (mean over the joints) of each calibrated \
+         controller against the uncalibrated robot on the same trajectory, measured by the vision estimate \
+         and by the simulator's truth.\n"
+    );
+    if held.is_empty() {
+        let _ = writeln!(out, "No held-out unit ran (`--units heldout` or `all` runs them).\n");
+    } else {
+        reduction_table(&mut out, &held);
+    }
+    let _ = writeln!(
+        out,
+        "## Per family (held-out): median [min, max] of the reduction, % over units × trajectories\n"
+    );
+    if rep.summary.is_empty() {
+        let _ = writeln!(out, "No results.\n");
+    } else {
+        let _ = write!(out, "| family | controller | units | pairs |");
+        for (_, h) in METRICS {
+            let _ = write!(out, " {h} |");
+        }
+        let _ = writeln!(out, "\n|---|---|---|---|---|---|---|---|---|---|");
+        for s in &rep.summary {
+            let n = s.reduction_pct.get("position_truth").map_or(0, |x| x.n);
+            let _ = write!(out, "| {} | {} | {} | {} |", s.family, s.controller, s.units, n);
+            for (key, _) in METRICS {
+                let txt = s.reduction_pct.get(key).map_or_else(
+                    || "—".into(),
+                    |x| format!("{:+.1} [{:+.1}, {:+.1}]", x.median, x.min, x.max),
+                );
+                let _ = write!(out, " {txt} |");
+            }
+            out.push('\n');
+        }
+        out.push('\n');
+    }
+    let _ = writeln!(
+        out,
+        "## Never worse than uncalibrated (held-out)\n\nEvery (unit, trajectory, metric) of a calibrated \
+         controller must have a reduction ≥ 0.\n"
+    );
+    let _ = writeln!(out, "| controller | checks | violations |\n|---|---|---|");
+    for n in &rep.never_worse {
+        let _ = writeln!(
+            out,
+            "| {} | {} | {} |",
+            n.controller,
+            n.checks,
+            if n.violations.is_empty() {
+                "none ✓".to_string()
+            } else {
+                format!("**{}**", n.violations.len())
+            }
+        );
+    }
+    out.push('\n');
+    for n in &rep.never_worse {
+        for v in &n.violations {
+            let _ = writeln!(
+                out,
+                "- {}: {} unit {}, {}, {}: {:+.1} %",
+                n.controller,
+                v.family,
+                v.unit,
+                v.trajectory,
+                METRICS
+                    .iter()
+                    .find(|m| m.0 == v.metric)
+                    .map_or(v.metric.as_str(), |m| m.1),
+                v.reduction_pct
+            );
+        }
+    }
+    if rep.never_worse.iter().any(|n| !n.violations.is_empty()) {
+        out.push('\n');
+    }
+    if let Some(b) = &rep.best_mode {
+        let _ = writeln!(
+            out,
+            "Best calibrated mode (median position reduction by truth over the held-out pairs): **{b}**; \
+             `transfer.svg` plots its distribution per family.\n"
+        );
+    }
+    let failed: Vec<&UnitOutcome> = rep.units.iter().filter(|u| u.failure.is_some()).collect();
+    if !failed.is_empty() {
+        let _ = writeln!(out, "## Failures\n");
+        for u in failed {
+            let Some(f) = &u.failure else { continue };
+            let _ = writeln!(
+                out,
+                "- {} unit {} ({}): step `{}` failed: {}{}{}",
+                u.family,
+                u.unit,
+                u.role.label(),
+                f.step,
+                f.status,
+                f.log
+                    .as_ref()
+                    .map(|l| format!("; log {}", l.display()))
+                    .unwrap_or_default(),
+                f.hint.as_ref().map(|h| format!("; {h}")).unwrap_or_default()
+            );
+            if !f.log_tail.is_empty() {
+                let _ = writeln!(out, "\n  ```\n  {}\n  ```", f.log_tail.join("\n  "));
+            }
+        }
+        out.push('\n');
+    }
+    let _ = writeln!(
+        out,
+        "## Timing per step\n\nWall seconds (CPU seconds of the subprocesses, user + system) on a machine with {} core(s), \
+         load average {} at the start. `*`: steps skipped in this run (finished earlier: the times are the stamp's).\n",
+        rep.cores,
+        rep.load_average.map_or_else(|| "unknown".into(), |l| format!("{l:.2}"))
+    );
+    let _ = writeln!(
+        out,
+        "| family | unit | collect | train | tune | evaluate | total |\n|---|---|---|---|---|---|---|"
+    );
+    for t in &rep.timing {
+        let _ = writeln!(
+            out,
+            "| {} | {} | {} | {} | {} | {} | {}{} |",
+            t.family,
+            t.unit,
+            secs(t.collect),
+            secs(t.train),
+            secs(t.tune),
+            secs(t.evaluate),
+            secs(Some(t.total)),
+            if t.resumed > 0 {
+                format!(" ({} step(s) *)", t.resumed)
+            } else {
+                String::new()
+            }
+        );
+    }
+    let mean = |f: fn(&TimingRow) -> Option<StepTime>| {
+        let v: Vec<StepTime> = rep.timing.iter().filter_map(f).collect();
+        let n = v.len() as f64;
+        (!v.is_empty()).then(|| StepTime {
+            seconds: v.iter().map(|t| t.seconds).sum::<f64>() / n,
+            cpu_seconds: v.iter().map(|t| t.cpu_seconds).sum::<f64>() / n,
+        })
+    };
+    if rep.timing.len() > 1 {
+        let _ = writeln!(
+            out,
+            "| mean | | {} | {} | {} | {} | {} |",
+            secs(mean(|t| t.collect)),
+            secs(mean(|t| t.train)),
+            secs(mean(|t| t.tune)),
+            secs(mean(|t| t.evaluate)),
+            secs(mean(|t| Some(t.total)))
+        );
+    }
+    let _ = writeln!(out, "\nWall time of this run: {:.0} s.\n", rep.wall_seconds);
+    if !tuning.is_empty() {
+        let _ = writeln!(
+            out,
+            "## Tuning units (for choosing the recipe only; not results)\n\nReduction vs uncalibrated, %.\n"
+        );
+        reduction_table(&mut out, &tuning);
+    }
+    out
+}
+
+// ---------------------------------------------------------------------------------------------
+// Plot
+
+/// Best mode's position reduction per family, one point per (unit, trajectory): truth filled,
+/// vision hollow; the legend sits beside the chart, off the data.
+fn plot(path: &Path, rep: &Report, units: &[&UnitOutcome], which: &str) -> Result<()> {
+    use plotters::prelude::*;
+    use plotters::style::text_anchor::{HPos, Pos, VPos};
+    let e = |x: String| anyhow!("{}: {x}", path.display());
+    let mode = rep.best_mode.clone().unwrap_or_else(|| "no results".into());
+    let fams: Vec<&Family> = rep
+        .families
+        .iter()
+        .filter(|f| units.iter().any(|u| u.family == f.name && !u.rows.is_empty()))
+        .collect();
+    let mut pts: Vec<(usize, usize, f64, bool)> = Vec::new(); // (family, k, value, truth)
+    for (fi, f) in fams.iter().enumerate() {
+        let mut k = 0;
+        for u in units.iter().filter(|u| u.family == f.name) {
+            for row in u.rows.iter().filter(|r| r.controller == mode) {
+                if let Some(v) = row.reduction_pct.position_truth {
+                    pts.push((fi, k, v, true));
+                }
+                if let Some(v) = row.reduction_pct.position_vision {
+                    pts.push((fi, k, v, false));
+                }
+                k += 1;
+            }
+        }
+    }
+    let per_family = |fi: usize| pts.iter().filter(|p| p.0 == fi && p.3).count().max(1);
+    let lo = pts.iter().map(|p| p.2).fold(0.0f64, f64::min);
+    let hi = pts.iter().map(|p| p.2).fold(100.0f64, f64::max);
+    let pad = 0.05 * (hi - lo).max(1.0);
+    let n = fams.len().max(1);
+    let width = (260 + 150 * n as u32).max(640);
+    let root = SVGBackend::new(path, (width, 460)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(x.to_string()))?;
+    let (left, right) = root.split_horizontally(width - 200);
+    let names: Vec<String> = fams
+        .iter()
+        .map(|f| {
+            let k = units
+                .iter()
+                .filter(|u| u.family == f.name && !u.rows.is_empty())
+                .count();
+            format!("{} ({k} unit{})", f.name, if k == 1 { "" } else { "s" })
+        })
+        .collect();
+    let mut chart = ChartBuilder::on(&left)
+        .caption(
+            format!("{mode}: tip position error reduction vs uncalibrated, {which} units"),
+            ("sans-serif", 15),
+        )
+        .margin(12)
+        .x_label_area_size(36)
+        .y_label_area_size(56)
+        .build_cartesian_2d(-0.5f64..n as f64 - 0.5, (lo - pad)..(hi + pad))
+        .map_err(|x| e(x.to_string()))?;
+    chart
+        .configure_mesh()
+        .disable_x_mesh()
+        .x_labels(0)
+        .y_desc("reduction, % (+ = better)")
+        .draw()
+        .map_err(|x| e(x.to_string()))?;
+    // Family names under their columns (the axis is categorical).
+    let label_style = TextStyle::from(("sans-serif", 13).into_font()).pos(Pos::new(HPos::Center, VPos::Top));
+    for (fi, name) in names.iter().enumerate() {
+        let (px, py) = chart.backend_coord(&(fi as f64, lo - pad));
+        left.draw(&Text::new(name.clone(), (px, py + 8), label_style.clone()))
+            .map_err(|x| e(x.to_string()))?;
+    }
+    chart
+        .draw_series(LineSeries::new(
+            vec![(-0.5, 0.0), (n as f64 - 0.5, 0.0)],
+            BLACK.mix(0.6).stroke_width(1),
+        ))
+        .map_err(|x| e(x.to_string()))?;
+    let spread = |fi: usize, k: usize| {
+        let m = per_family(fi);
+        if m == 1 {
+            0.0
+        } else {
+            0.18 * (k as f64 / (m - 1) as f64 - 0.5)
+        }
+    };
+    let truth_c = RGBColor(31, 119, 180);
+    let vision_c = RGBColor(214, 39, 40);
+    chart
+        .draw_series(
+            pts.iter()
+                .filter(|p| p.3)
+                .map(|p| Circle::new((p.0 as f64 - 0.13 + spread(p.0, p.1), p.2), 4, truth_c.filled())),
+        )
+        .map_err(|x| e(x.to_string()))?;
+    chart
+        .draw_series(
+            pts.iter()
+                .filter(|p| !p.3)
+                .map(|p| Circle::new((p.0 as f64 + 0.13 + spread(p.0, p.1), p.2), 4, vision_c.stroke_width(1))),
+        )
+        .map_err(|x| e(x.to_string()))?;
+    for fi in 0..fams.len() {
+        for (truth, c, dx) in [(true, truth_c, -0.13), (false, vision_c, 0.13)] {
+            let v: Vec<f64> = pts.iter().filter(|p| p.0 == fi && p.3 == truth).map(|p| p.2).collect();
+            if let Some(s) = stat(v) {
+                let x = fi as f64 + dx;
+                chart
+                    .draw_series(LineSeries::new(
+                        vec![(x - 0.13, s.median), (x + 0.13, s.median)],
+                        c.stroke_width(2),
+                    ))
+                    .map_err(|x| e(x.to_string()))?;
+            }
+        }
+    }
+    // Legend panel.
+    let text = ("sans-serif", 13).into_font();
+    let items: [(&str, u8); 4] = [
+        ("by truth (unit × trajectory)", 0),
+        ("by vision", 1),
+        ("median", 2),
+        ("0 = uncalibrated", 3),
+    ];
+    for (i, (label, kind)) in items.iter().enumerate() {
+        let y = 60 + 24 * i as i32;
+        match kind {
+            0 => right.draw(&Circle::new((16, y), 4, truth_c.filled())),
+            1 => right.draw(&Circle::new((16, y), 4, vision_c.stroke_width(1))),
+            2 => right.draw(&PathElement::new(vec![(6, y), (26, y)], truth_c.stroke_width(2))),
+            _ => right.draw(&PathElement::new(vec![(6, y), (26, y)], BLACK.mix(0.6).stroke_width(1))),
+        }
+        .map_err(|x| e(x.to_string()))?;
+        right
+            .draw(&Text::new(label.to_string(), (34, y - 7), text.clone()))
+            .map_err(|x| e(x.to_string()))?;
+    }
+    root.present().map_err(|x| e(x.to_string()))?;
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
+// The command
+
+fn transfer(a: TransferArgs) -> Result<()> {
+    if a.jobs == 0 {
+        bail!("--jobs must be at least 1");
+    }
+    let t_start = Instant::now();
+    let load_average = std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|s| s.split_whitespace().next()?.parse::<f64>().ok());
+    let config_file = absolute(&a.config);
+    let text = std::fs::read_to_string(&config_file).with_context(|| format!("reading {}", a.config.display()))?;
+    let cfg: TransferConfig = toml::from_str(&text).map_err(|e| anyhow!("{}: {e}", a.config.display()))?;
+    cfg.validate().map_err(|e| anyhow!("{}: {e}", a.config.display()))?;
+    let cfg_dir = config_file.parent().map(Path::to_path_buf).unwrap_or_default();
+    let root = find_root(&cfg_dir);
+    // The directory the user's commands run in (their default `configs/...` paths).
+    let project = root
+        .clone()
+        .or_else(|| std::env::current_dir().ok().as_deref().and_then(find_root))
+        .unwrap_or_else(|| absolute(Path::new(".")));
+    let recipe = if a.quick {
+        cfg.recipe.quick()
+    } else {
+        cfg.recipe.clone()
+    };
+    let base_controller = resolve(&recipe.base_controller, &cfg_dir, root.as_deref());
+    if !base_controller.is_file() {
+        bail!(
+            "{}: recipe.base_controller: no file {} (relative paths resolve against the config's directory, \
+             the repository root, then the working directory)",
+            a.config.display(),
+            recipe.base_controller.display()
+        );
+    }
+    for t in &recipe.trajectories {
+        let f = project.join("configs/trajectories").join(format!("{t}.toml"));
+        if !f.is_file() {
+            bail!(
+                "{}: recipe.trajectories: no trajectory `{t}` ({})",
+                a.config.display(),
+                f.display()
+            );
+        }
+    }
+    // Families, named.
+    let mut families = Vec::new();
+    for (i, f) in cfg.families.iter().enumerate() {
+        let plant = resolve(&f.plant, &cfg_dir, root.as_deref());
+        let model = plant_family_label(&plant).unwrap_or_else(|| file_stem(&plant));
+        let name = f.name.clone().unwrap_or_else(|| model.clone());
+        if !path_safe(&name) {
+            bail!(
+                "{}: family[{i}].name: `{name}` (from the plant file) cannot name a directory: give `name`",
+                a.config.display()
+            );
+        }
+        if families.iter().any(|x: &Family| x.name == name) {
+            bail!("{}: family[{i}].name: `{name}` appears twice", a.config.display());
+        }
+        families.push(Family {
+            name,
+            model,
+            plant,
+            tuning_units: f.tuning_units.clone(),
+            heldout_units: f.heldout_units.clone(),
+        });
+    }
+    for f in &a.families {
+        if !families.iter().any(|x| &x.name == f) {
+            bail!(
+                "--families: no family `{f}` in {} (it has {})",
+                a.config.display(),
+                families.iter().map(|x| x.name.as_str()).collect::<Vec<_>>().join(", ")
+            );
+        }
+    }
+    // Units, taken in turn from each family (so --max-units covers the families).
+    let out = absolute(&a.out);
+    let mut queues: Vec<Vec<UnitPlan>> = Vec::new();
+    for (fi, f) in families.iter().enumerate() {
+        if !a.families.is_empty() && !a.families.contains(&f.name) {
+            continue;
+        }
+        let mut q = Vec::new();
+        let want = |r: Role| match a.units {
+            UnitSet::All => true,
+            UnitSet::Tuning => r == Role::Tuning,
+            UnitSet::Heldout => r == Role::HeldOut,
+        };
+        for (role, list) in [(Role::HeldOut, &f.heldout_units), (Role::Tuning, &f.tuning_units)] {
+            if want(role) {
+                for &u in list {
+                    q.push(UnitPlan {
+                        family: fi,
+                        unit: u,
+                        role,
+                        dir: out.join("units").join(&f.name).join(format!("unit-{u}")),
+                    });
+                }
+            }
+        }
+        queues.push(q);
+    }
+    let mut plans = Vec::new();
+    for k in 0.. {
+        let before = plans.len();
+        for q in &queues {
+            if let Some(p) = q.get(k) {
+                plans.push(p.clone());
+            }
+        }
+        if plans.len() == before {
+            break;
+        }
+    }
+    if let Some(m) = a.max_units {
+        plans.truncate(m);
+    }
+    if plans.is_empty() {
+        bail!("no units selected (--units, --families, --max-units)");
+    }
+    for p in &plans {
+        let f = &families[p.family];
+        if !f.plant.is_file() {
+            bail!(
+                "{}: family[{}] ({}).plant: no file {} (relative paths resolve against the config's directory, \
+                 the repository root, then the working directory); leave the family out with --families",
+                a.config.display(),
+                p.family,
+                f.name,
+                f.plant.display()
+            );
+        }
+    }
+    let exe = std::env::current_exe().context("locating the bowden executable")?;
+    if recipe.tune {
+        let o = std::process::Command::new(&exe)
+            .args(["tune", "--help"])
+            .stdin(Stdio::null())
+            .output()
+            .context("running bowden tune --help")?;
+        if !o.status.success() {
+            let err = String::from_utf8_lossy(&o.stderr);
+            if err.contains("unrecognized subcommand") {
+                bail!(
+                    "{}: recipe.tune = true but this bowden has no `tune` subcommand: set `recipe.tune = false`",
+                    a.config.display()
+                );
+            }
+            bail!("bowden tune --help failed ({}): {}", o.status, err.trim());
+        }
+    }
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let jobs = a.jobs.min(plans.len());
+    let threads = recipe.threads.unwrap_or((cores / jobs).max(1));
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    let ctx = Ctx {
+        exe,
+        project: project.clone(),
+        recipe: recipe.clone(),
+        seed: cfg.seed,
+        threads,
+        base_controller,
+        config_file: config_file.clone(),
+        mp: MultiProgress::new(),
+    };
+    eprintln!(
+        "bench transfer: {} unit(s), {} at once, into {}",
+        plans.len(),
+        jobs,
+        out.display()
+    );
+    let overall = ctx.mp.add(ProgressBar::new(plans.len() as u64));
+    overall.set_style(
+        ProgressStyle::with_template("units [{bar:30}] {pos}/{len}  {elapsed_precise}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    let next = AtomicUsize::new(0);
+    let outcomes: Mutex<Vec<Option<UnitOutcome>>> = Mutex::new(vec![None; plans.len()]);
+    std::thread::scope(|s| {
+        for _ in 0..jobs {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, Ordering::SeqCst);
+                let Some(plan) = plans.get(i) else { break };
+                let label = format!("{}/unit-{}", families[plan.family].name, plan.unit);
+                let bar = ctx.mp.insert_before(&overall, ProgressBar::new_spinner());
+                bar.set_style(
+                    ProgressStyle::with_template("{spinner} {prefix:32} {msg:28} {elapsed}")
+                        .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+                );
+                bar.set_prefix(label.clone());
+                bar.enable_steady_tick(Duration::from_millis(250));
+                let o = run_unit(&ctx, &families, plan, &bar);
+                bar.finish_and_clear();
+                ctx.mp.remove(&bar);
+                ctx.mp.suspend(|| match &o.failure {
+                    None => eprintln!("{label}: done in {:.0} s", o.wall_seconds),
+                    Some(f) => eprintln!(
+                        "{label}: FAILED at step {} ({}){}{}{}",
+                        f.step,
+                        f.status,
+                        f.hint.as_ref().map(|h| format!(": {h}")).unwrap_or_default(),
+                        f.log
+                            .as_ref()
+                            .map(|l| format!("; log {}", l.display()))
+                            .unwrap_or_default(),
+                        if f.log_tail.is_empty() {
+                            String::new()
+                        } else {
+                            format!("\n    {}", f.log_tail.join("\n    "))
+                        }
+                    ),
+                });
+                if let Ok(mut v) = outcomes.lock() {
+                    v[i] = Some(o);
+                }
+                overall.inc(1);
+            });
+        }
+    });
+    overall.finish_and_clear();
+    let units: Vec<UnitOutcome> = outcomes
+        .into_inner()
+        .map_err(|_| anyhow!("a unit's thread panicked"))?
+        .into_iter()
+        .flatten()
+        .collect();
+    if units.len() != plans.len() {
+        bail!(
+            "{} of {} units did not report (a thread panicked)",
+            plans.len() - units.len(),
+            plans.len()
+        );
+    }
+    let held: Vec<&UnitOutcome> = units.iter().filter(|u| u.role == Role::HeldOut).collect();
+    let summary = summarise(&held, &families, &recipe);
+    let mut rep = Report {
+        config: config_file,
+        out: out.clone(),
+        project_dir: project,
+        quick: a.quick,
+        units_selected: a.units,
+        jobs,
+        train_threads: threads,
+        cores,
+        load_average,
+        seed: cfg.seed,
+        recipe: recipe.clone(),
+        families,
+        best_mode: best_mode(&held, &recipe),
+        summary,
+        never_worse: never_worse(&held, &recipe),
+        timing: timing(&units),
+        units: Vec::new(),
+        wall_seconds: 0.0,
+    };
+    let (plotted, which): (Vec<&UnitOutcome>, &str) = if held.iter().any(|u| !u.rows.is_empty()) {
+        (held.clone(), "held-out")
+    } else {
+        let t: Vec<&UnitOutcome> = units.iter().filter(|u| u.role == Role::Tuning).collect();
+        if rep.best_mode.is_none() {
+            rep.best_mode = best_mode(&t, &recipe);
+        }
+        (t, "tuning (no held-out results)")
+    };
+    let svg = out.join("transfer.svg");
+    plot(&svg, &rep, &plotted, which)?;
+    let n_failed = units.iter().filter(|u| u.failure.is_some()).count();
+    let failed_names: Vec<String> = units
+        .iter()
+        .filter_map(|u| {
+            u.failure
+                .as_ref()
+                .map(|f| format!("{}/unit-{} at {}", u.family, u.unit, f.step))
+        })
+        .collect();
+    rep.units = units;
+    rep.wall_seconds = t_start.elapsed().as_secs_f64();
+    let md = markdown(&rep);
+    write_atomic(&out.join("transfer.md"), &md)?;
+    write_atomic(&out.join("transfer.json"), &serde_json::to_string_pretty(&rep)?)?;
+    println!("{md}");
+    eprintln!(
+        "wrote {0}/transfer.md, {0}/transfer.json, {0}/transfer.svg",
+        out.display()
+    );
+    if n_failed > 0 {
+        bail!(
+            "{n_failed} of {} unit(s) failed ({}); the report lists them",
+            rep.units.len(),
+            failed_names.join(", ")
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cfg(text: &str) -> std::result::Result<TransferConfig, String> {
+        let c: TransferConfig = toml::from_str(text).map_err(|e| e.to_string())?;
+        c.validate()?;
+        Ok(c)
+    }
+
+    const OK: &str = r#"
+seed = 1
+[recipe]
+samples = 100
+excitation = "mixed"
+archs = ["tcn"]
+epochs = 3
+seq_len = 80
+repeats = 1
+trajectories = ["circle"]
+controllers = ["uncalibrated", "paper"]
+tune = false
+base_controller = "configs/controller.toml"
+[[family]]
+name = "a"
+plant = "configs/plant.toml"
+heldout_units = [1, 2]
+"#;
+
+    #[test]
+    fn config_errors_name_the_field() {
+        assert!(cfg(OK).is_ok());
+        let e = cfg(&OK.replace("samples = 100", "samples = 1")).unwrap_err();
+        assert!(e.contains("recipe.samples"), "{e}");
+        let e = cfg(&OK.replace("samples = 100", "sampels = 100")).unwrap_err();
+        assert!(e.contains("sampels"), "{e}");
+        let e = cfg(&OK.replace("[\"tcn\"]", "[\"cnn\"]")).unwrap_err();
+        assert!(e.contains("recipe.archs[0]"), "{e}");
+        let e = cfg(&OK.replace("[\"uncalibrated\", \"paper\"]", "[\"paper\"]")).unwrap_err();
+        assert!(e.contains("recipe.controllers"), "{e}");
+        let e = cfg(&OK.replace("heldout_units = [1, 2]", "heldout_units = [1, 2]\ntuning_units = [2]")).unwrap_err();
+        assert!(e.contains("family[0].heldout_units"), "{e}");
+    }
+
+    #[test]
+    fn stats_and_reductions() {
+        let s = stat(vec![3.0, 1.0, 2.0, f64::NAN, 10.0]).unwrap();
+        assert_eq!((s.n, s.min, s.median, s.max), (4, 1.0, 2.5, 10.0));
+        let u = Six {
+            position_truth: Some(10.0),
+            ..Default::default()
+        };
+        let c = Six {
+            position_truth: Some(4.0),
+            position_vision: Some(1.0),
+            ..Default::default()
+        };
+        let r = Six::zip(&u, &c, reduction_pct);
+        assert_eq!(r.position_truth, Some(60.0));
+        assert_eq!(r.position_vision, None);
+    }
+
+    #[test]
+    fn unit_plant_sets_the_unit() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("p.toml");
+        std::fs::write(&p, "name = \"x\"\n[variation]\nrelative_sd = 0.05\nunit = 3\n").unwrap();
+        let t: toml::Table = toml::from_str(&unit_plant_text(&p, 77).unwrap()).unwrap();
+        assert_eq!(t["variation"]["unit"].as_integer(), Some(77));
+        assert_eq!(t["variation"]["relative_sd"].as_float(), Some(0.05));
+        std::fs::write(&p, "name = \"x\"\n").unwrap();
+        let t: toml::Table = toml::from_str(&unit_plant_text(&p, 5).unwrap()).unwrap();
+        assert_eq!(t["variation"]["unit"].as_integer(), Some(5));
+    }
+}

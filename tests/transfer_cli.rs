@@ -1,0 +1,318 @@
+//! `bowden bench transfer --quick` end to end on one capstan unit: every step of a user's
+//! workflow runs as a subprocess, the report files are written with numbers for every
+//! (trajectory, controller), a rerun resumes (every step skipped), a removed stamp reruns only
+//! its step, bad configs name the field, and no shared memory is left behind.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::time::Instant;
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn bowden(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_bowden"))
+        .current_dir(repo())
+        .args(args)
+        .output()
+        .expect("run bowden")
+}
+
+fn ok(out: &Output) -> String {
+    assert!(
+        out.status.success(),
+        "bowden failed: {}\n{}",
+        String::from_utf8_lossy(&out.stderr),
+        String::from_utf8_lossy(&out.stdout)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn fails_with(out: &Output, needles: &[&str]) {
+    assert!(!out.status.success(), "expected a failure");
+    let err = String::from_utf8_lossy(&out.stderr);
+    for n in needles {
+        assert!(err.contains(n), "stderr {err:?} does not mention {n:?}");
+    }
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+/// The config of the test: one held-out unit of the default capstan family. `bowden tune` is
+/// used when this bowden has it.
+fn config(dir: &Path, recipe_extra: &str, family_extra: &str) -> PathBuf {
+    let tune = bowden(&["tune", "--help"]).status.success();
+    let r = repo();
+    let text = format!(
+        r#"seed = 7
+[recipe]
+samples = 3000
+excitation = "mixed"
+archs = ["tcn"]
+epochs = 100
+seq_len = 80
+repeats = 3
+trajectories = ["random", "circle", "zigzag"]
+controllers = ["uncalibrated", "paper", "newton"]
+tune = {tune}
+base_controller = "{base}"
+{recipe_extra}
+[[family]]
+name = "capstan"
+plant = "{plant}"
+tuning_units = [2026]
+heldout_units = [4242]
+{family_extra}
+"#,
+        base = r.join("configs/controller.toml").display(),
+        plant = r.join("configs/plant.toml").display(),
+    );
+    let p = dir.join("transfer.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// iceoryx2 files of lockstep pipelines (`bcol<pid>_…` of collect, `bev<pid>_…` of evaluate).
+fn shm_pipelines() -> BTreeSet<String> {
+    std::fs::read_dir("/dev/shm")
+        .map(|d| {
+            d.flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| n.starts_with("bcol") || n.starts_with("bev"))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// The pid in `bcol<pid>_…` / `bev<pid>_…`.
+fn owner_alive(name: &str) -> bool {
+    let digits: String = name
+        .trim_start_matches("bcol")
+        .trim_start_matches("bev")
+        .chars()
+        .take_while(char::is_ascii_digit)
+        .collect();
+    !digits.is_empty() && Path::new("/proc").join(&digits).exists()
+}
+
+fn steps(v: &serde_json::Value) -> Vec<(String, String)> {
+    v["units"][0]["steps"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| {
+            (
+                s["step"].as_str().unwrap().to_string(),
+                s["status"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn quick_transfer_runs_resumes_and_reports() {
+    let shm_before = shm_pipelines();
+    let tmp = tempfile::tempdir().unwrap();
+    // A second family whose plant file the simulator refuses: its unit fails at `collect`, the
+    // bench goes on with the other, reports the failure and exits non-zero.
+    let plant = std::fs::read_to_string(repo().join("configs/plant.toml")).unwrap();
+    assert!(plant.contains("\nplays = 6\n"));
+    std::fs::write(
+        tmp.path().join("plant-broken.toml"),
+        plant.replace("\nplays = 6\n", "\nplays = \"six\"\n"),
+    )
+    .unwrap();
+    let cfg = config(
+        tmp.path(),
+        "",
+        "[[family]]\nname = \"broken\"\nplant = \"plant-broken.toml\"\nheldout_units = [1]\n",
+    );
+    let out = tmp.path().join("out");
+    let (cfg_s, out_s) = (cfg.display().to_string(), out.display().to_string());
+    let all = bowden(&["bench", "transfer", "--config", &cfg_s, "--out", &out_s, "--quick"]);
+    fails_with(&all, &["1 of 2 unit(s) failed", "broken/unit-1 at collect", "plays"]);
+    let stdout = String::from_utf8_lossy(&all.stdout).into_owned();
+    assert!(
+        stdout.contains("| broken | 1 | — | — | **failed** at step `collect`"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("## Failures") && stdout.contains("expected usize"),
+        "{stdout}"
+    );
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("transfer.json")).unwrap()).unwrap();
+    let broken = &v["units"][1];
+    assert_eq!(
+        (broken["family"].as_str(), broken["status"].as_str()),
+        (Some("broken"), Some("failed"))
+    );
+    assert_eq!(broken["failure"]["step"], "collect");
+    assert!(!broken["failure"]["log_tail"].as_array().unwrap().is_empty());
+    assert!(!out.join("units/broken/unit-1/collect.done").exists());
+    // From here on the good family only.
+    let args = [
+        "bench",
+        "transfer",
+        "--config",
+        &cfg_s,
+        "--out",
+        &out_s,
+        "--quick",
+        "--families",
+        "capstan",
+    ];
+    assert!(stdout.contains("# Transfer to unseen units"), "{stdout}");
+    assert!(
+        stdout.contains("Held-out units") && stdout.contains("capstan 4242"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("Tuning units") && stdout.contains("capstan 2026"),
+        "{stdout}"
+    );
+    for f in ["transfer.md", "transfer.json", "transfer.svg"] {
+        let p = out.join(f);
+        assert!(p.is_file() && std::fs::metadata(&p).unwrap().len() > 200, "{f} missing");
+    }
+    let svg = std::fs::read_to_string(out.join("transfer.svg")).unwrap();
+    assert!(svg.contains("capstan (1 unit)"), "family label in the plot");
+    assert_eq!(v["quick"], true);
+    let units = v["units"].as_array().unwrap();
+    assert_eq!(units.len(), 2, "the held-out units run by default, not the tuning one");
+    let u = &units[0];
+    assert_eq!(
+        (u["family"].as_str(), u["unit"].as_u64()),
+        (Some("capstan"), Some(4242))
+    );
+    assert_eq!(
+        (u["role"].as_str(), u["status"].as_str()),
+        (Some("held-out"), Some("ok")),
+        "{u}"
+    );
+    // The unit's plant file is the family's with the unit set.
+    let unit_dir = out.join("units/capstan/unit-4242");
+    let plant: toml::Table = toml::from_str(&std::fs::read_to_string(unit_dir.join("plant.toml")).unwrap()).unwrap();
+    assert_eq!(plant["variation"]["unit"].as_integer(), Some(4242));
+    // A number for every trajectory × calibrated controller × metric.
+    let rows = u["rows"].as_array().unwrap();
+    for t in ["random", "circle", "zigzag"] {
+        for c in ["paper", "newton"] {
+            let row = rows
+                .iter()
+                .find(|r| r["trajectory"] == t && r["controller"] == c)
+                .unwrap_or_else(|| panic!("no row {t}/{c}"));
+            for m in [
+                "position_vision",
+                "position_truth",
+                "orientation_vision",
+                "orientation_truth",
+                "joint_vision",
+                "joint_truth",
+            ] {
+                for part in ["error", "uncalibrated", "reduction_pct"] {
+                    assert!(
+                        row[part][m].as_f64().is_some_and(f64::is_finite),
+                        "{t}/{c} {part}.{m}: {row}"
+                    );
+                }
+                assert!(
+                    row["uncalibrated"][m].as_f64().unwrap() > 0.0,
+                    "{t}/{c} uncalibrated {m}"
+                );
+            }
+        }
+    }
+    let first = steps(&v);
+    let names: Vec<&str> = first.iter().map(|(s, _)| s.as_str()).collect();
+    assert_eq!(
+        names,
+        ["collect", "train-tcn-forward", "train-tcn-inverse", "tune", "evaluate"]
+    );
+    assert!(first.iter().all(|(_, st)| st == "ran"), "{first:?}");
+    for (s, _) in &first {
+        assert!(unit_dir.join(format!("{s}.done")).is_file(), "{s}.done");
+        assert!(unit_dir.join("logs").join(format!("{s}.log")).is_file(), "{s}.log");
+    }
+    assert!(v["timing"][0]["collect"]["seconds"].as_f64().unwrap() > 0.0);
+
+    // A rerun (of the good family) resumes: every step skipped, quickly.
+    let t0 = Instant::now();
+    let stdout2 = ok(&bowden(&args));
+    assert!(!stdout2.contains("| broken | 1 |"), "{stdout2}");
+    let dt = t0.elapsed().as_secs_f64();
+    let v2: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("transfer.json")).unwrap()).unwrap();
+    assert!(steps(&v2).iter().all(|(_, st)| st == "skipped"), "{:?}", steps(&v2));
+    assert!(dt < 20.0, "a resumed run took {dt:.1} s");
+    assert_eq!(
+        v2["units"][0]["rows"], v["units"][0]["rows"],
+        "same results from the same files"
+    );
+    assert!(stdout2.contains("5 step(s) *"), "{stdout2}");
+
+    // An unfinished step (no stamp) reruns, with what depends on it; the rest is kept.
+    std::fs::remove_file(unit_dir.join("tune.done")).unwrap();
+    ok(&bowden(&args));
+    let v3: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("transfer.json")).unwrap()).unwrap();
+    let st: Vec<String> = steps(&v3).into_iter().map(|(_, s)| s).collect();
+    assert_eq!(st, ["skipped", "skipped", "skipped", "ran", "ran"]);
+
+    // Nothing of the pipelines is left in shared memory.
+    let leaked: Vec<String> = shm_pipelines()
+        .difference(&shm_before)
+        .filter(|n| !owner_alive(n))
+        .cloned()
+        .collect();
+    assert!(leaked.is_empty(), "left in /dev/shm: {leaked:?}");
+}
+
+#[test]
+fn bad_configs_name_the_field() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out").display().to_string();
+    let run = |cfg: &Path| {
+        bowden(&[
+            "bench",
+            "transfer",
+            "--config",
+            &cfg.display().to_string(),
+            "--out",
+            &out,
+        ])
+    };
+    // Wrong value.
+    let cfg = config(tmp.path(), "", "");
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    std::fs::write(&cfg, text.replace("samples = 3000", "samples = 1")).unwrap();
+    fails_with(&run(&cfg), &["transfer.toml", "recipe.samples"]);
+    // Misspelt key.
+    std::fs::write(&cfg, text.replace("samples = 3000", "sampels = 3000")).unwrap();
+    fails_with(&run(&cfg), &["transfer.toml", "sampels"]);
+    // Unknown controller, unknown architecture, a held-out unit that is also a tuning unit.
+    std::fs::write(&cfg, text.replace("\"paper\", \"newton\"", "\"paper\", \"pid\"")).unwrap();
+    fails_with(&run(&cfg), &["recipe.controllers", "pid"]);
+    std::fs::write(&cfg, text.replace("[\"tcn\"]", "[\"tcn\", \"gru\"]")).unwrap();
+    fails_with(&run(&cfg), &["recipe.archs[1]"]);
+    std::fs::write(&cfg, text.replace("heldout_units = [4242]", "heldout_units = [2026]")).unwrap();
+    fails_with(&run(&cfg), &["family[0].heldout_units", "2026"]);
+    // A missing plant file, named before anything runs.
+    let cfg = config(
+        tmp.path(),
+        "",
+        "[[family]]\nname = \"ghost\"\nplant = \"configs/plant-ghost.toml\"\nheldout_units = [1]\n",
+    );
+    fails_with(&run(&cfg), &["family[1] (ghost).plant", "plant-ghost.toml"]);
+    // An unknown family on the command line.
+    let out2 = bowden(&[
+        "bench",
+        "transfer",
+        "--config",
+        &cfg.display().to_string(),
+        "--families",
+        "nope",
+        "--out",
+        &out,
+    ]);
+    fails_with(&out2, &["--families", "nope", "capstan"]);
+    assert!(!Path::new(&out).join("units").exists(), "nothing ran");
+}
