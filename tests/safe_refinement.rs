@@ -110,7 +110,11 @@ fn run_family(plant_file: &str, tmp: &Path, variants: &[SafetyConfig]) -> Family
     let mut plant = Plant::new(&robot, &cfg, cfg.variation.unit_for_run(5));
     let commands = bowden_trajectory::dataset_commands(&robot, 220, 11);
     let ds = record(&mut plant, &commands);
-    let tag = Path::new(plant_file).file_stem().unwrap().to_string_lossy().into_owned();
+    let tag = Path::new(plant_file)
+        .file_stem()
+        .unwrap()
+        .to_string_lossy()
+        .into_owned();
     let (fwd, inv) = poor_pair(&ds, tmp, &tag);
     // Unseen targets: another seed's eq. (16) path (one model step apart).
     let targets = bowden_trajectory::dataset_commands(&robot, 12, 99);
@@ -142,7 +146,10 @@ fn poor_models_never_track_worse_than_uncalibrated_on_any_family() {
     let tmp = tempfile::tempdir().unwrap();
     let mut failures = Vec::new();
     let shipped = ControllerConfig::shipped().safety;
-    assert!(shipped.never_worse && shipped.support, "the shipped config runs the safe refinement");
+    assert!(
+        shipped.never_worse && shipped.support,
+        "the shipped config runs the safe refinement"
+    );
     for plant_file in FAMILIES {
         let r = run_family(plant_file, tmp.path(), &[shipped.clone(), SafetyConfig::default()]);
         eprintln!("{}: uncalibrated joint MAE {:.2}°", r.plant, r.uncalibrated);

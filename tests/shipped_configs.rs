@@ -25,12 +25,17 @@ fn shipped_controller_configs_load_their_models_and_compensate() {
         // training-data support recorded in its metadata (else the support and drift bounds
         // would silently be off).
         let sf = comp.safety();
-        assert!(sf.support && sf.never_worse && sf.correction_scale > 0.0, "{name}: {sf:?}");
+        assert!(
+            sf.support && sf.never_worse && sf.correction_scale > 0.0,
+            "{name}: {sf:?}"
+        );
         let sup = comp
             .support()
             .unwrap_or_else(|| panic!("{name}: the forward model records no training-data support"));
         for k in 0..5 {
-            assert!(sup.cmd_min_deg[k] < sup.cmd_max_deg[k] && sup.cmd_step_max_deg[k] > 0.0 && sup.gap_max_deg[k] > 0.0);
+            assert!(
+                sup.cmd_min_deg[k] < sup.cmd_max_deg[k] && sup.cmd_step_max_deg[k] > 0.0 && sup.gap_max_deg[k] > 0.0
+            );
         }
         for mode in [Mode::Paper, Mode::Newton] {
             comp.set_mode(mode).unwrap();

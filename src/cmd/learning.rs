@@ -320,7 +320,8 @@ pub fn run(c: Command) -> Result<()> {
         }
         Command::StampSupport(a) => {
             let (split, phy) = a.split.parse()?;
-            let (ds, _) = bowden_learning::Dataset::read_dir(&a.data).with_context(|| format!("--data {}", a.data.display()))?;
+            let (ds, _) =
+                bowden_learning::Dataset::read_dir(&a.data).with_context(|| format!("--data {}", a.data.display()))?;
             for m in &a.models {
                 let file = bowden_learning::ModelFile::load(m)?;
                 let w = bowden_learning::WindowSet::build(&ds, file.direction, file.spec.seq_len, split, phy)
@@ -332,8 +333,14 @@ pub fn run(c: Command) -> Result<()> {
                     m.display(),
                     sup.cmd_min_deg.iter().map(|v| v.round()).collect::<Vec<_>>(),
                     sup.cmd_max_deg.iter().map(|v| v.round()).collect::<Vec<_>>(),
-                    sup.cmd_step_max_deg.iter().map(|v| (v * 10.0).round() / 10.0).collect::<Vec<_>>(),
-                    sup.gap_max_deg.iter().map(|v| (v * 10.0).round() / 10.0).collect::<Vec<_>>()
+                    sup.cmd_step_max_deg
+                        .iter()
+                        .map(|v| (v * 10.0).round() / 10.0)
+                        .collect::<Vec<_>>(),
+                    sup.gap_max_deg
+                        .iter()
+                        .map(|v| (v * 10.0).round() / 10.0)
+                        .collect::<Vec<_>>()
                 );
             }
             Ok(())

@@ -29,7 +29,7 @@ pub mod windows;
 pub use arch::{tcn_num_blocks, Arch, Direction, ModelSpec, TcnBlock};
 pub use dataset::{AngleUnit, Dataset, DatasetError, ImportOptions, Manifest};
 pub use onnx::{ModelFile, OnnxError, TractModel};
-pub use support::DataSupport;
 pub use report::{train_to_files, LearnError, TrainReport};
+pub use support::DataSupport;
 pub use train::{train, Backend, TrainConfig, TrainError, TrainOutcome};
 pub use windows::{PhySource, SplitConfig, WindowSet};

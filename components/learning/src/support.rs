@@ -103,7 +103,8 @@ impl DataSupport {
             return Ok(None);
         }
         let read = |k: &str| -> Result<Vec<f64>, String> {
-            let s = get(k).ok_or_else(|| format!("metadata prop {k:?} is missing (the other support props are there)"))?;
+            let s =
+                get(k).ok_or_else(|| format!("metadata prop {k:?} is missing (the other support props are there)"))?;
             let v: Vec<f64> = s
                 .split(',')
                 .map(|p| p.trim().parse::<f64>())
