@@ -460,7 +460,11 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("y.toml") && e.contains("budget_ms"), "{e}");
-        let bad = SHIPPED.replace("mode = \"paper\"", "mode = \"magic\"");
+        let bad: String = SHIPPED
+            .lines()
+            .map(|l| if l.starts_with("mode = ") { "mode = \"magic\"" } else { l })
+            .collect::<Vec<_>>()
+            .join("\n");
         let e = ControllerConfig::parse(&bad, Path::new("z.toml"))
             .unwrap_err()
             .to_string();

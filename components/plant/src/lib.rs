@@ -1,5 +1,5 @@
 //! `bowden-plant`: the simulated tendon-sheath manipulator every other part of bowden is
-//! tested against (DESIGN.md §6), and the paper's dataset protocol run on it.
+//! tested against (docs/architecture.md §6), and the paper's dataset protocol run on it.
 //!
 //! - [`Plant`]: driven by cable displacement commands (eq. 5), the joint command decoded from
 //!   them by the inverse cable equation; hysteresis from one of three independently formulated
