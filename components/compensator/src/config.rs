@@ -462,7 +462,13 @@ mod tests {
         assert!(e.contains("y.toml") && e.contains("budget_ms"), "{e}");
         let bad: String = SHIPPED
             .lines()
-            .map(|l| if l.starts_with("mode = ") { "mode = \"magic\"" } else { l })
+            .map(|l| {
+                if l.starts_with("mode = ") {
+                    "mode = \"magic\""
+                } else {
+                    l
+                }
+            })
             .collect::<Vec<_>>()
             .join("\n");
         let e = ControllerConfig::parse(&bad, Path::new("z.toml"))
