@@ -617,35 +617,23 @@ pub fn config_toml(
         "# history.step_deg = {:.4}: the grid of the training commands (most frequent |Δq_cmd|).\n",
         r.step_deg
     ));
-    for (k, s) in r.forward.iter().enumerate() {
-        head.push_str(&format!(
-            "# forward #{k}: {} ({} L={}), validation RMSE {:.3}° over {} windows\n",
-            name_of(&s.path),
-            s.architecture,
-            s.seq_len,
-            s.val_rmse_deg,
-            s.windows
-        ));
-    }
-    for (k, s) in r.judge_only.iter().enumerate() {
-        head.push_str(&format!(
-            "# judge #{}: {} ({} L={}), validation RMSE {:.3}° (rates candidates only)\n",
-            r.forward.len() + k,
+    let line = |role: &str, k: usize, s: &ModelScore, tail: String| {
+        format!(
+            "# {role} #{k}: {} ({} L={}), validation RMSE {:.3}° {tail}\n",
             name_of(&s.path),
             s.architecture,
             s.seq_len,
             s.val_rmse_deg
-        ));
+        )
+    };
+    for (k, s) in r.forward.iter().enumerate() {
+        head.push_str(&line("forward", k, s, format!("over {} windows", s.windows)));
+    }
+    for (k, s) in r.judge_only.iter().enumerate() {
+        head.push_str(&line("judge", r.forward.len() + k, s, "(rates candidates only)".into()));
     }
     for (k, s) in r.inverse.iter().enumerate() {
-        head.push_str(&format!(
-            "# inverse #{k}: {} ({} L={}), validation RMSE {:.3}° over {} windows\n",
-            name_of(&s.path),
-            s.architecture,
-            s.seq_len,
-            s.val_rmse_deg,
-            s.windows
-        ));
+        head.push_str(&line("inverse", k, s, format!("over {} windows", s.windows)));
     }
     head.push_str(&format!(
         "# Replayed {} validation steps (after {} of warm-up) per candidate, safe refinement on; the sent\n",
