@@ -1,37 +1,12 @@
 //! `bowden import`, `bowden train`, `bowden sweep` from the command line: files written,
 //! reports consistent, errors named, sweeps resumable.
 
+mod cli_support;
+use cli_support::{bowden, fails_with, ok};
 use std::path::Path;
-use std::process::{Command, Output};
 
 use bowden_learning::npy::write_npy_f64;
 use bowden_learning::synthetic::hysteretic_dataset;
-
-fn bowden(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bowden"))
-        .args(args)
-        .output()
-        .expect("run bowden")
-}
-
-fn ok(out: &Output) -> String {
-    assert!(
-        out.status.success(),
-        "bowden failed: {}\n{}",
-        String::from_utf8_lossy(&out.stderr),
-        String::from_utf8_lossy(&out.stdout)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-fn fails_with(out: &Output, needles: &[&str]) {
-    assert!(!out.status.success(), "expected a failure");
-    let err = String::from_utf8_lossy(&out.stderr);
-    for n in needles {
-        assert!(err.contains(n), "stderr {err:?} does not mention {n:?}");
-    }
-    assert!(!err.contains("panicked"), "{err}");
-}
 
 fn synthetic_dir(dir: &Path, n: usize) -> String {
     hysteretic_dataset(n, 5, 11)

@@ -3,41 +3,11 @@
 //! (trajectory, controller), a rerun resumes (every step skipped), a removed stamp reruns only
 //! its step, bad configs name the field, and no shared memory is left behind.
 
+mod cli_support;
+use cli_support::{bowden, fails_with, ok, repo};
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 use std::time::Instant;
-
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn bowden(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bowden"))
-        .current_dir(repo())
-        .args(args)
-        .output()
-        .expect("run bowden")
-}
-
-fn ok(out: &Output) -> String {
-    assert!(
-        out.status.success(),
-        "bowden failed: {}\n{}",
-        String::from_utf8_lossy(&out.stderr),
-        String::from_utf8_lossy(&out.stdout)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-fn fails_with(out: &Output, needles: &[&str]) {
-    assert!(!out.status.success(), "expected a failure");
-    let err = String::from_utf8_lossy(&out.stderr);
-    for n in needles {
-        assert!(err.contains(n), "stderr {err:?} does not mention {n:?}");
-    }
-    assert!(!err.contains("panicked"), "{err}");
-}
 
 /// The config of the test: one held-out unit of the default capstan family. `bowden tune` is
 /// used when this bowden has it.

@@ -1,0 +1,40 @@
+//! Running the `bowden` binary from integration tests: the repository root as the working
+//! directory, and the two outcomes every CLI test checks.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+pub fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Runs `bowden ARGS` from the repository root.
+pub fn bowden(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_bowden"))
+        .current_dir(repo())
+        .args(args)
+        .output()
+        .expect("run bowden")
+}
+
+/// The stdout of a run that must succeed (else its stderr and stdout in the panic).
+pub fn ok(out: &Output) -> String {
+    assert!(
+        out.status.success(),
+        "bowden failed: {}\n{}",
+        String::from_utf8_lossy(&out.stderr),
+        String::from_utf8_lossy(&out.stdout)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// A run that must fail with a clear error mentioning every needle, and no panic.
+pub fn fails_with(out: &Output, needles: &[&str]) {
+    assert!(!out.status.success(), "expected a failure");
+    let err = String::from_utf8_lossy(&out.stderr);
+    for n in needles {
+        assert!(err.contains(n), "stderr {err:?} does not mention {n:?}");
+    }
+    assert!(!err.contains("panicked"), "{err}");
+}
