@@ -118,6 +118,25 @@ enum Family {
     Lugre(lugre::Params),
 }
 
+/// What every family's step starts from: the checked command and the time it advances to.
+struct StepInput<'a> {
+    cable_disp_mm: &'a [f64; N_CABLES],
+    dt_s: f64,
+    q_cmd_deg: JointsDeg,
+    t_next_ns: u64,
+    slack_mm: &'a [f64; N_CABLES],
+}
+
+/// What a family's step computed before contact, limits and settling (`Plant::finish`).
+struct QuasiStatic {
+    q_eq_rad: [f64; N_JOINTS],
+    z_mm: [[f64; MAX_PLAYS]; N_CABLES],
+    tip_mm: [f64; N_CABLES],
+    tension_n: [f64; N_CABLES],
+    iterations: u32,
+    family: FamilyState,
+}
+
 /// The result of evaluating the quasi-static map once.
 struct Eval {
     q_rad: [f64; N_JOINTS],
@@ -409,29 +428,44 @@ impl Plant {
         let q_cmd_deg = self.check_command(cable_disp_mm)?;
         let t_next_ns = self.state.t_sim_ns.saturating_add((dt_s * 1e9).round() as u64);
         let slack_mm = self.slack_mm(t_next_ns);
+        let input = StepInput {
+            cable_disp_mm,
+            dt_s,
+            q_cmd_deg,
+            t_next_ns,
+            slack_mm: &slack_mm,
+        };
         let next = match (&self.family, &self.state.family) {
-            (Family::BoucWen(p), FamilyState::BoucWen(st)) => {
-                self.next_bouc_wen(p, *st, cable_disp_mm, dt_s, q_cmd_deg, t_next_ns, &slack_mm)
-            }
-            (Family::Lugre(p), FamilyState::Lugre(st)) => {
-                self.next_lugre(p, *st, cable_disp_mm, dt_s, q_cmd_deg, t_next_ns, &slack_mm)
-            }
-            (Family::Capstan, _) => self.next_capstan(cable_disp_mm, dt_s, q_cmd_deg, t_next_ns, &slack_mm),
+            (Family::BoucWen(p), FamilyState::BoucWen(st)) => self.next_bouc_wen(p, *st, &input),
+            (Family::Lugre(p), FamilyState::Lugre(st)) => self.next_lugre(p, *st, &input),
+            (Family::Capstan, _) => self.next_capstan(&input),
             _ => unreachable!("a plant's state is always of its own family"),
         }?;
-        self.state = next;
+        self.state = self.finish(&input, next);
         Ok(())
     }
 
+    /// Contact, limits and settling after any family's quasi-static state: the new state.
+    fn finish(&self, input: &StepInput, r: QuasiStatic) -> State {
+        let (q_qs_deg, q_phy_deg) = self.settle_toward(&r.q_eq_rad, input.dt_s);
+        State {
+            z_mm: r.z_mm,
+            q_eq_rad: r.q_eq_rad,
+            q_qs_deg,
+            q_phy_deg,
+            q_cmd_deg: input.q_cmd_deg,
+            u_mm: *input.cable_disp_mm,
+            tip_mm: r.tip_mm,
+            tension_n: r.tension_n,
+            t_sim_ns: input.t_next_ns,
+            iterations: r.iterations,
+            family: r.family,
+        }
+    }
+
     /// The capstan family's step: the state after `dt_s` (nothing committed).
-    fn next_capstan(
-        &self,
-        cable_disp_mm: &[f64; N_CABLES],
-        dt_s: f64,
-        q_cmd_deg: JointsDeg,
-        t_next_ns: u64,
-        slack_mm: &[f64; N_CABLES],
-    ) -> Result<State, PlantError> {
+    fn next_capstan(&self, input: &StepInput) -> Result<QuasiStatic, PlantError> {
+        let (cable_disp_mm, slack_mm) = (input.cable_disp_mm, input.slack_mm);
         // Quasi-static equilibrium q = Q(q), warm-started from the last one.
         let mut q = self.state.q_eq_rad;
         let mut eval = self.quasi_static(cable_disp_mm, &q, slack_mm)?;
@@ -450,17 +484,11 @@ impl Plant {
             iterations += 1;
         }
 
-        let (q_qs_deg, q_phy_deg) = self.settle_toward(&eval.q_rad, dt_s);
-        Ok(State {
-            z_mm: eval.z_mm,
+        Ok(QuasiStatic {
             q_eq_rad: eval.q_rad,
-            q_qs_deg,
-            q_phy_deg,
-            q_cmd_deg,
-            u_mm: *cable_disp_mm,
+            z_mm: eval.z_mm,
             tip_mm: eval.tip_mm,
             tension_n: eval.tension_n,
-            t_sim_ns: t_next_ns,
             iterations,
             family: FamilyState::Capstan,
         })
@@ -468,17 +496,13 @@ impl Plant {
 
     /// The `bouc-wen` family's step (see [`crate::families::bouc_wen`]): joint command → lag per
     /// joint → creep offset → elastic stretch → coupling, gains, offsets.
-    #[allow(clippy::too_many_arguments)]
     fn next_bouc_wen(
         &self,
         params: &bouc_wen::Params,
         mut bw: bouc_wen::State,
-        cable_disp_mm: &[f64; N_CABLES],
-        dt_s: f64,
-        q_cmd_deg: JointsDeg,
-        t_next_ns: u64,
-        slack_mm: &[f64; N_CABLES],
-    ) -> Result<State, PlantError> {
+        input: &StepInput,
+    ) -> Result<QuasiStatic, PlantError> {
+        let (q_cmd_deg, slack_mm) = (input.q_cmd_deg, input.slack_mm);
         let creep = pair_creep(&self.pairs, &self.compliance_mm_per_n, &self.pretension_n, slack_mm);
         let band = bouc_wen::Creep {
             width_scale: creep.map(|c| c.tension_ratio),
@@ -515,17 +539,11 @@ impl Plant {
             (self.pretension_n[i] - creep[p].drop_n + self.pair_sign[i] * 0.5 * delta_t[p]).max(0.0)
         });
 
-        let (q_qs_deg, q_phy_deg) = self.settle_toward(&q_rad, dt_s);
-        Ok(State {
-            z_mm: self.state.z_mm,
+        Ok(QuasiStatic {
             q_eq_rad: q_rad,
-            q_qs_deg,
-            q_phy_deg,
-            q_cmd_deg,
-            u_mm: *cable_disp_mm,
+            z_mm: self.state.z_mm,
             tip_mm,
             tension_n,
-            t_sim_ns: t_next_ns,
             iterations: substeps,
             family: FamilyState::BoucWen(bw),
         })
@@ -534,17 +552,13 @@ impl Plant {
     /// The `lugre` family's step (see [`crate::families::lugre`]): sub-stepped cable friction
     /// dynamics → distal ends, creep and free play → inverse cable equation → coupling, gains,
     /// offsets.
-    #[allow(clippy::too_many_arguments)]
     fn next_lugre(
         &self,
         params: &lugre::Params,
         mut lg: lugre::State,
-        cable_disp_mm: &[f64; N_CABLES],
-        dt_s: f64,
-        q_cmd_deg: JointsDeg,
-        t_next_ns: u64,
-        slack_mm: &[f64; N_CABLES],
-    ) -> Result<State, PlantError> {
+        input: &StepInput,
+    ) -> Result<QuasiStatic, PlantError> {
+        let (cable_disp_mm, dt_s, slack_mm) = (input.cable_disp_mm, input.dt_s, input.slack_mm);
         let creep = pair_creep(&self.pairs, &self.compliance_mm_per_n, &self.pretension_n, slack_mm);
         let pretension_n: [f64; N_CABLES] =
             core::array::from_fn(|i| (self.pretension_n[i] - creep[self.pair_of[i]].drop_n).max(0.0));
@@ -565,17 +579,11 @@ impl Plant {
         let q_out = self.joint_map * Vector5::from(q_cables_deg.map(f64::to_radians));
         let q_rad: [f64; N_JOINTS] = core::array::from_fn(|k| q_out[k] + self.offset_rad[k]);
 
-        let (q_qs_deg, q_phy_deg) = self.settle_toward(&q_rad, dt_s);
-        Ok(State {
-            z_mm: self.state.z_mm,
+        Ok(QuasiStatic {
             q_eq_rad: q_rad,
-            q_qs_deg,
-            q_phy_deg,
-            q_cmd_deg,
-            u_mm: *cable_disp_mm,
+            z_mm: self.state.z_mm,
             tip_mm,
             tension_n,
-            t_sim_ns: t_next_ns,
             iterations: substeps,
             family: FamilyState::Lugre(lg),
         })
