@@ -9,9 +9,8 @@
 mod common;
 
 use bowden_kinematics::{Robot, N_JOINTS};
-use bowden_plant::characterize::{TARGET_MAE_DEG, TARGET_SD_DEG};
-use bowden_plant::{characterize, CharacterizeOptions, FamilyKind, Plant, PlantConfig, PlantConfigError};
-use common::{commands, sweep};
+use bowden_plant::{FamilyKind, Plant, PlantConfig, PlantConfigError};
+use common::{commands, lands_in_the_papers_range, mean_abs_error, quasi_static_run, sweep};
 
 fn file(name: &str) -> String {
     format!("{}/../../configs/{name}", env!("CARGO_MANIFEST_DIR"))
@@ -23,66 +22,6 @@ fn bouc_wen() -> PlantConfig {
 
 fn lugre() -> PlantConfig {
     PlantConfig::load(file("plant-lugre.toml")).unwrap()
-}
-
-fn quasi_static_run(plant: &mut Plant, cmds: &[[f64; 5]]) -> Vec<[f64; 5]> {
-    cmds.iter()
-        .map(|q| {
-            plant.settle_joints(q, 0.5, 0.01).unwrap();
-            plant.q_phy_deg()
-        })
-        .collect()
-}
-
-fn mean_abs_error(cmds: &[[f64; 5]], phy: &[[f64; 5]], j: usize) -> f64 {
-    cmds.iter().zip(phy).map(|(c, p)| (p[j] - c[j]).abs()).sum::<f64>() / cmds.len() as f64
-}
-
-/// Like tests/characterize_range.rs for the capstan plant: 150 configurations, seeded.
-fn lands_in_the_papers_range(config: &PlantConfig) {
-    let robot = Robot::paper_default();
-    let options = CharacterizeOptions {
-        n_configs: 150,
-        dataset_seed: 2,
-        plant_seed: 2,
-        pause_s: 0.5,
-        dt_s: 0.01,
-    };
-    let r = characterize(&robot, config, &options, &mut |_, _| {}).unwrap();
-    eprintln!("{}", r.markdown_table());
-    for j in &r.joints {
-        assert!(
-            (TARGET_MAE_DEG.0..=TARGET_MAE_DEG.1).contains(&j.mae_deg),
-            "{}: {} MAE {:.2} outside {:?}",
-            config.name,
-            j.joint,
-            j.mae_deg,
-            TARGET_MAE_DEG
-        );
-        assert!(
-            (TARGET_SD_DEG.0..=TARGET_SD_DEG.1).contains(&j.sd_abs_deg),
-            "{}: {} SD {:.2} outside {:?}",
-            config.name,
-            j.joint,
-            j.sd_abs_deg,
-            TARGET_SD_DEG
-        );
-        assert!(
-            j.loop_width_deg > 3.0,
-            "{}: {} loop width {:.2}",
-            config.name,
-            j.joint,
-            j.loop_width_deg
-        );
-        assert!(
-            j.lag_residual_deg > 3.0,
-            "{}: {} lag residual {:.2}",
-            config.name,
-            j.joint,
-            j.lag_residual_deg
-        );
-    }
-    assert!(r.in_paper_range);
 }
 
 #[test]

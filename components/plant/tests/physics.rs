@@ -8,20 +8,7 @@ mod common;
 
 use bowden_kinematics::{Robot, N_JOINTS};
 use bowden_plant::{characterize, CharacterizeOptions, Plant, PlantConfig};
-use common::{commands, sweep};
-
-fn quasi_static_run(plant: &mut Plant, cmds: &[[f64; 5]]) -> Vec<[f64; 5]> {
-    cmds.iter()
-        .map(|q| {
-            plant.settle_joints(q, 0.5, 0.01).unwrap();
-            plant.q_phy_deg()
-        })
-        .collect()
-}
-
-fn mean_abs_error(cmds: &[[f64; 5]], phy: &[[f64; 5]], j: usize) -> f64 {
-    cmds.iter().zip(phy).map(|(c, p)| (p[j] - c[j]).abs()).sum::<f64>() / cmds.len() as f64
-}
+use common::{commands, mean_abs_error, quasi_static_run, sweep};
 
 fn with_wrap(wrap_deg: f64) -> PlantConfig {
     let mut c = PlantConfig::paper_default();
