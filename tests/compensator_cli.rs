@@ -1,6 +1,6 @@
 //! `bowden compensate` end to end: CSV in, CSV out, and clear errors for bad input.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn bowden() -> Command {
@@ -31,8 +31,8 @@ fn compensate_writes_one_row_per_target() {
         );
     }
     std::fs::write(&targets, csv).unwrap();
-    let out = dir.path().join("out.csv");
     for mode in ["paper", "newton", "uncalibrated"] {
+        let out = dir.path().join(format!("out-{mode}.csv"));
         let st = bowden()
             .args(["compensate", "--mode", mode, "--targets"])
             .arg(&targets)
@@ -87,4 +87,204 @@ fn compensate_reports_bad_targets_with_file_and_line() {
     assert!(!st.status.success());
     let err = String::from_utf8_lossy(&st.stderr);
     assert!(err.contains("/nonexistent/f.onnx"), "{err}");
+}
+
+/// A smooth joint path of `n` waypoints inside the shipped robot's limits (and the shipped
+/// models' training range): up to ~1.4° per joint between rows, as a CSV with the given header.
+fn waypoints(n: usize, header: &str) -> String {
+    let mut csv = format!("{header}\n");
+    for k in 0..n {
+        let t = k as f64 / (n - 1) as f64;
+        let tau = std::f64::consts::TAU;
+        let mut q = Vec::new();
+        for (j, amp) in [18.0, 18.0, 13.0].into_iter().enumerate() {
+            let j = j as f64;
+            q.push(
+                amp * (0.6 * (tau * (1.5 + 0.5 * j) * t + j).sin() + 0.4 * (tau * (3.1 + 0.3 * j) * t + 2.0 * j).sin()),
+            );
+        }
+        let yaw = 5.0 * (tau * 2.0 * t).sin();
+        let opening = 14.0 + 8.0 * (tau * 2.5 * t).sin();
+        q.push(yaw - opening / 2.0);
+        q.push(yaw + opening / 2.0);
+        let fields: Vec<String> = q.iter().map(|v| format!("{v:.6}")).collect();
+        csv += &format!("{},{}\n", k * 500_000_000, fields.join(","));
+    }
+    csv
+}
+
+/// Runs `compensate` (shipped config and models) and returns its predicted error: the mean
+/// max|f(q_cmd) − q_desired| of its summary line.
+fn predicted_error(targets: &Path, out: &Path, extra: &[&str]) -> f64 {
+    let st = bowden()
+        .arg("compensate")
+        .arg("--targets")
+        .arg(targets)
+        .arg("--out")
+        .arg(out)
+        .args(extra)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&st.stderr);
+    assert!(st.status.success(), "{extra:?}: {err}");
+    let at = err
+        .find("q_desired| = ")
+        .unwrap_or_else(|| panic!("no summary in {err}"))
+        + "q_desired| = ".len();
+    err[at..].split_whitespace().next().unwrap().parse().unwrap()
+}
+
+/// Largest change of any joint's command between consecutive rows of an output CSV.
+fn largest_command_step(out: &Path) -> f64 {
+    let text = std::fs::read_to_string(out).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let cols: Vec<usize> = (1..=5)
+        .map(|c| header.iter().position(|h| *h == format!("q_cmd_{c}")).unwrap())
+        .collect();
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            cols.iter().map(|&i| f[i].parse().unwrap()).collect()
+        })
+        .collect();
+    rows.windows(2)
+        .flat_map(|w| (0..5).map(move |c| (w[1][c] - w[0][c]).abs()))
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn compensate_treats_a_target_file_as_waypoints() {
+    let dir = tempfile::tempdir().unwrap();
+    let targets = dir.path().join("waypoints.csv");
+    std::fs::write(&targets, waypoints(200, "t_ns,q1,q2,q3,q4,q5")).unwrap();
+    let out = |name: &str| dir.path().join(format!("{name}.csv"));
+    let uncalibrated = predicted_error(&targets, &out("uncalibrated"), &["--mode", "uncalibrated"]);
+    let paper = predicted_error(&targets, &out("paper"), &["--mode", "paper"]);
+    let newton = predicted_error(&targets, &out("newton"), &["--mode", "newton"]);
+    assert!(
+        paper < 0.6 * uncalibrated && newton < 0.6 * uncalibrated,
+        "predicted error: paper {paper}, newton {newton}, uncalibrated {uncalibrated}"
+    );
+    // No output rate limit on waypoints: the commands move as far as the targets ask.
+    assert!(largest_command_step(&out("paper")) > 1.0);
+    // An explicit period makes the rows a timed stream under the controller's output limits:
+    // the shipped 360°/s at 1 ms is 0.36° per row.
+    let timed = predicted_error(&targets, &out("timed"), &["--mode", "paper", "--period-ns", "1000000"]);
+    let step = largest_command_step(&out("timed"));
+    assert!(step <= 0.36 + 1e-6, "rate limit at --period-ns 1000000: {step}");
+    assert!(timed > paper, "rate-limited {timed} vs waypoints {paper}");
+    // --period-ns 0 is the waypoint default, said explicitly.
+    let zero = predicted_error(&targets, &out("zero"), &["--mode", "paper", "--period-ns", "0"]);
+    assert_eq!(zero, paper);
+}
+
+/// The CSV without its wall-time column (the only one that varies between runs).
+fn without_elapsed(out: &Path) -> String {
+    std::fs::read_to_string(out)
+        .unwrap()
+        .lines()
+        .map(|l| l.rsplit_once(',').unwrap().0.to_string() + "\n")
+        .collect()
+}
+
+#[test]
+fn compensate_reads_named_columns_with_cols() {
+    let dir = tempfile::tempdir().unwrap();
+    let plain = dir.path().join("plain.csv");
+    let named = dir.path().join("named.csv");
+    std::fs::write(&plain, waypoints(40, "t_ns,q1,q2,q3,q4,q5")).unwrap();
+    // The joint columns under other names, one of them in a different place, and decoy q-columns.
+    let text: String = waypoints(40, "t,a,pitch2,c,jaw_left,jaw_right")
+        .lines()
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            let decoy = if f[0] == "t" { "q1,q2" } else { "99,-99" };
+            format!("{},{decoy},{},{},{},{},{}\n", f[2], f[0], f[1], f[3], f[4], f[5])
+        })
+        .collect();
+    std::fs::write(&named, text).unwrap();
+    let a = dir.path().join("a.csv");
+    let b = dir.path().join("b.csv");
+    predicted_error(&plain, &a, &["--mode", "paper"]);
+    predicted_error(
+        &named,
+        &b,
+        &["--mode", "paper", "--cols", "a, pitch2,c,jaw_left,jaw_right"],
+    );
+    assert_eq!(without_elapsed(&a), without_elapsed(&b));
+
+    let st = bowden()
+        .args(["compensate", "--mode", "uncalibrated", "--targets"])
+        .arg(&named)
+        .args(["--cols", "a,pitch2,nope,jaw_left,jaw_right"])
+        .output()
+        .unwrap();
+    assert!(!st.status.success());
+    let err = String::from_utf8_lossy(&st.stderr);
+    assert!(
+        err.contains("named.csv") && err.contains("\"nope\"") && err.contains("jaw_right"),
+        "{err}"
+    );
+    let st = bowden()
+        .args(["compensate", "--mode", "uncalibrated", "--targets"])
+        .arg(&named)
+        .args(["--cols", "a,pitch2,c"])
+        .output()
+        .unwrap();
+    assert!(!st.status.success());
+    let err = String::from_utf8_lossy(&st.stderr);
+    assert!(err.contains("--cols") && err.contains("5 joints"), "{err}");
+}
+
+#[test]
+fn compensate_does_not_overwrite_without_force() {
+    let dir = tempfile::tempdir().unwrap();
+    let targets = dir.path().join("targets.csv");
+    std::fs::write(&targets, waypoints(10, "t_ns,q1,q2,q3,q4,q5")).unwrap();
+    let out = dir.path().join("commands.csv");
+    std::fs::write(&out, "keep me\n").unwrap();
+    let run = |force: bool| {
+        let mut c = bowden();
+        c.args(["compensate", "--mode", "uncalibrated", "--targets"])
+            .arg(&targets)
+            .arg("--out")
+            .arg(&out);
+        if force {
+            c.arg("--force");
+        }
+        c.output().unwrap()
+    };
+    let st = run(false);
+    assert!(!st.status.success());
+    let err = String::from_utf8_lossy(&st.stderr);
+    assert!(err.contains("commands.csv") && err.contains("--force"), "{err}");
+    assert_eq!(std::fs::read_to_string(&out).unwrap(), "keep me\n");
+    let st = run(true);
+    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    assert!(std::fs::read_to_string(&out).unwrap().starts_with("step,q_des_1"));
+}
+
+#[test]
+fn compensate_help_documents_every_output_column() {
+    let dir = tempfile::tempdir().unwrap();
+    let targets = dir.path().join("targets.csv");
+    std::fs::write(&targets, waypoints(5, "t_ns,q1,q2,q3,q4,q5")).unwrap();
+    let out = dir.path().join("out.csv");
+    predicted_error(&targets, &out, &["--mode", "uncalibrated"]);
+    let text = std::fs::read_to_string(&out).unwrap();
+    let help = bowden().args(["compensate", "--help"]).output().unwrap();
+    let help = String::from_utf8_lossy(&help.stdout);
+    for col in text.lines().next().unwrap().split(',') {
+        // q_des_3 is documented as q_des_1..5.
+        let doc = match col.rsplit_once('_') {
+            Some((base, n)) if n.parse::<usize>().is_ok() => format!("{base}_1..5"),
+            _ => col.to_string(),
+        };
+        assert!(
+            help.contains(&format!("`{doc}`")),
+            "--help does not document {col}: {help}"
+        );
+    }
+    assert!(help.contains("--period-ns") && help.contains("--cols") && help.contains("--force"));
 }

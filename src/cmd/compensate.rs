@@ -6,12 +6,25 @@ use bowden_compensator::bench::{self, BenchOptions, Scenario};
 use bowden_compensator::{offline, Compensator, ControllerConfig, Mode};
 use bowden_kinematics::Robot;
 use clap::{Args, Subcommand};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 #[derive(Subcommand)]
 pub enum Command {
     /// Compensate a target file offline: CSV in (columns q1..q5, degrees), CSV out with the
     /// command, the forward model's prediction, iterations and stop reason per target.
+    ///
+    /// The rows are waypoints, compensated in order with no output rate limit, unless
+    /// --period-ns gives their spacing in time. Joint limits apply (`output.joint_limits`).
+    ///
+    /// Output columns, one row per target: `step` (0-based row), `q_des_1..5` (the target),
+    /// `q_cmd_1..5` (the command to send), `q_pred_1..5` (the forward model's prediction of the
+    /// physical angles at q_cmd; zeros without a forward model), `loss_max_abs_deg`
+    /// (max_j |q_pred − q_des|: the predicted error; empty without a forward model),
+    /// `iterations` and `forward_evals` (refinement iterations and forward-model evaluations),
+    /// `stop_reason` (none | threshold | max-iterations | budget | stalled | rejected-input),
+    /// `elapsed_ns` (wall time of the step). All angles in degrees. The summary on stderr
+    /// gives the mean and max predicted error; run with `--mode uncalibrated` to compare.
     Compensate(CompensateArgs),
 }
 
@@ -36,20 +49,30 @@ pub struct ModelArgs {
 pub struct CompensateArgs {
     #[command(flatten)]
     models: ModelArgs,
-    /// Target file: CSV with a header naming q1..q5 (degrees); other columns are ignored.
+    /// Target file: CSV with a header naming the joint columns q1..q5 (or --cols), degrees;
+    /// other columns are ignored; `#` lines and blank lines are skipped.
     #[arg(long)]
     targets: PathBuf,
+    /// CSV target columns, q1..q5 in order (default: q1, q2, ...), e.g.
+    /// `--cols q_des_1,q_des_2,q_des_3,q_des_4,q_des_5`.
+    #[arg(long)]
+    cols: Option<String>,
     /// uncalibrated | paper | newton (default: the config's mode).
     #[arg(long)]
     mode: Option<String>,
-    /// Output CSV (default: standard output).
+    /// Output CSV (default: standard output); the columns are listed above.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Overwrite --out if it exists.
+    #[arg(long)]
+    force: bool,
     /// Time budget per step in ns; default 0 (none), so the output is reproducible.
     #[arg(long, default_value_t = 0)]
     budget_ns: u64,
-    /// Time between consecutive targets, ns, for the output rate limit (default: the
-    /// config's `output.period_ns`); 0 disables the rate limit.
+    /// Time between consecutive rows, ns. Default (or 0): the rows are waypoints and no output
+    /// rate limit applies. N > 0: the rows are N ns apart and the controller's output limits
+    /// apply, so each command moves at most `output.rate_limit_deg_s` · N ns from the last
+    /// (e.g. 0.36° per row for the shipped 360°/s at N = 1000000, a 1 kHz stream).
     #[arg(long)]
     period_ns: Option<u64>,
 }
@@ -144,21 +167,41 @@ fn compensate(a: CompensateArgs) -> anyhow::Result<()> {
         cfg.mode = parse_mode(m)?;
     }
     cfg.budget.budget_ns = a.budget_ns;
+    // Waypoints unless a period is given: the rate limit is a speed, meaningless without time.
     match a.period_ns {
-        Some(0) => cfg.output.rate_limit_deg_s = 0.0,
+        None | Some(0) => cfg.output.rate_limit_deg_s = 0.0,
         Some(ns) => cfg.output.period_ns = ns,
-        None => {}
+    }
+    if let Some(p) = &a.out {
+        if p.exists() && !a.force {
+            bail!("{}: exists; pass --force to overwrite it", p.display());
+        }
     }
     let mut comp = Compensator::from_config(&cfg, &robot).context("building the compensator")?;
-    let targets = offline::read_targets_csv(&a.targets, comp.joints())?;
+    let targets = match &a.cols {
+        None => offline::read_targets_csv(&a.targets, comp.joints())?,
+        Some(cols) => read_targets_named(&a.targets, &split_names(cols), comp.joints())?,
+    };
     let bar = progress_bar(targets.len() as u64, "targets");
     let outs = offline::run(&mut comp, &targets, |i| bar.set_position(i as u64));
     bar.finish_and_clear();
     match &a.out {
         Some(p) => {
-            let f = std::fs::File::create(p).with_context(|| format!("creating {}", p.display()))?;
+            let f = if a.force {
+                std::fs::File::create(p)
+            } else {
+                std::fs::File::options().write(true).create_new(true).open(p)
+            }
+            .with_context(|| {
+                format!(
+                    "creating {}{}",
+                    p.display(),
+                    if a.force { "" } else { " (without --force)" }
+                )
+            })?;
             let mut w = std::io::BufWriter::new(f);
             offline::write_csv(&mut w, &outs).with_context(|| format!("writing {}", p.display()))?;
+            w.flush().with_context(|| format!("writing {}", p.display()))?;
         }
         None => offline::write_csv(&mut std::io::stdout().lock(), &outs).context("writing to stdout")?,
     }
@@ -175,6 +218,76 @@ fn compensate(a: CompensateArgs) -> anyhow::Result<()> {
         s.stop_reasons
     );
     Ok(())
+}
+
+/// Column names as `bowden import --cmd-cols` takes them: comma-separated, trimmed.
+fn split_names(s: &str) -> Vec<String> {
+    s.split(',')
+        .map(|p| p.trim().to_string())
+        .filter(|p| !p.is_empty())
+        .collect()
+}
+
+/// Reads targets whose joint columns are `names` (q1..qJ in order, matched exactly as
+/// `bowden import` matches them): the header is renamed to q1..qJ and read as usual, with
+/// errors naming the file's own columns.
+fn read_targets_named(path: &Path, names: &[String], joints: usize) -> anyhow::Result<Vec<Vec<f64>>> {
+    if names.len() != joints {
+        bail!(
+            "--cols: {} names given ({}), the controller has {joints} joints (q1..q{joints} in order)",
+            names.len(),
+            names.join(",")
+        );
+    }
+    for (i, n) in names.iter().enumerate() {
+        if names[..i].contains(n) {
+            bail!("--cols: column {n:?} is named twice");
+        }
+    }
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path).with_context(|| format!("{file}: cannot read"))?;
+    let mut renamed = String::with_capacity(text.len());
+    let mut header_done = false;
+    for line in text.lines() {
+        let l = line.trim();
+        if header_done || l.is_empty() || l.starts_with('#') {
+            renamed.push_str(line);
+        } else {
+            header_done = true;
+            let header: Vec<String> = l
+                .trim_start_matches('\u{feff}')
+                .split(',')
+                .map(|f| f.trim().trim_matches('"').to_string())
+                .collect();
+            let mut new: Vec<String> = (0..header.len()).map(|i| format!("-{i}")).collect();
+            for (k, n) in names.iter().enumerate() {
+                let i = header.iter().position(|h| h == n).with_context(|| {
+                    format!("{file}: --cols: no column {n:?} (the header has: {})", header.join(","))
+                })?;
+                new[i] = format!("q{}", k + 1);
+            }
+            renamed.push_str(&new.join(","));
+        }
+        renamed.push('\n');
+    }
+    offline::parse_targets_csv(&renamed, &file, joints).map_err(|e| match e {
+        offline::TargetsError::BadValue {
+            path,
+            line,
+            column,
+            value,
+        } => {
+            let k: usize = column.trim_start_matches('q').parse().unwrap_or(1);
+            offline::TargetsError::BadValue {
+                path,
+                line,
+                column: names.get(k.wrapping_sub(1)).cloned().unwrap_or(column),
+                value,
+            }
+            .into()
+        }
+        e => anyhow::Error::from(e),
+    })
 }
 
 fn pin_to_cpu(cpu: usize) -> anyhow::Result<()> {
