@@ -36,6 +36,8 @@ enum Command {
     Evaluate(cmd::evaluate::Command),
     #[command(flatten)]
     Tune(cmd::tune::Command),
+    #[command(flatten)]
+    Trajectory(cmd::trajectory::Command),
     /// Latency and throughput benchmarks printing percentiles.
     Bench {
         #[command(subcommand)]
@@ -62,6 +64,7 @@ fn main() -> std::process::ExitCode {
         Command::Collect(c) => cmd::collect::run(c),
         Command::Evaluate(c) => cmd::evaluate::run(c),
         Command::Tune(c) => cmd::tune::run(c),
+        Command::Trajectory(c) => cmd::trajectory::run(c),
         Command::Bench { what } => cmd::bench::run(what),
     };
     match result {

@@ -10,6 +10,7 @@ pub mod kin;
 pub mod learning;
 pub mod plant;
 pub mod runtime;
+pub mod trajectory;
 pub mod transfer;
 pub mod tune;
 

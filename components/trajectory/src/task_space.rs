@@ -62,12 +62,24 @@ pub enum Shape {
         teeth: u32,
     },
     /// A smooth random path: the tip trace of a joint-space curve through `waypoints` random
-    /// configurations drawn with `seed` (a seed stream the dataset never uses).
-    Random { waypoints: u32, seed: u64 },
+    /// configurations drawn with `seed` (a seed stream the dataset never uses), each of q1..q3
+    /// uniform in `limit_fraction` × its joint limits.
+    Random {
+        waypoints: u32,
+        seed: u64,
+        /// Fraction of the joint limits the waypoints are drawn in, (0, 1]. 0.3 (the default)
+        /// keeps the paths of `configs/trajectories/` as they were measured.
+        #[serde(default = "default_limit_fraction")]
+        limit_fraction: f64,
+    },
 }
 
 fn one() -> f64 {
     1.0
+}
+
+fn default_limit_fraction() -> f64 {
+    0.3
 }
 
 /// One trajectory file.
@@ -178,9 +190,18 @@ impl TrajectorySpec {
                     return Err(bad("zigzag: length_mm, amplitude_mm and teeth must be positive".into()));
                 }
             }
-            Shape::Random { waypoints, .. } => {
+            Shape::Random {
+                waypoints,
+                limit_fraction,
+                ..
+            } => {
                 if *waypoints < 2 {
                     return Err(bad(format!("random: need at least 2 waypoints, got {waypoints}")));
+                }
+                if !(limit_fraction.is_finite() && *limit_fraction > 0.0 && *limit_fraction <= 1.0) {
+                    return Err(bad(format!(
+                        "random: limit_fraction must be in (0, 1], got {limit_fraction}"
+                    )));
                 }
             }
         }
@@ -239,16 +260,22 @@ impl TrajectorySpec {
                     })
                     .collect::<Vec<_>>()
             }
-            Shape::Random { waypoints, seed } => {
+            Shape::Random {
+                waypoints,
+                seed,
+                limit_fraction,
+            } => {
                 // The tip trace of a smooth random joint-space curve (q1..q3 through random
-                // waypoints inside half the limits, smoothstep-blended), with q_yaw from its
+                // waypoints inside `limit_fraction` of the limits, smoothstep-blended), with q_yaw from its
                 // profile: a task-space path that is reachable by construction (chords between
                 // random tip positions leave this curved workspace).
                 let mut rng = ChaCha8Rng::seed_from_u64(*seed);
                 let lim = &robot.config.limits;
                 let wps: Vec<[f64; 3]> = (0..*waypoints)
                     .map(|_| {
-                        core::array::from_fn(|j| rng.random_range(lim.q_min_deg[j] * 0.3..=lim.q_max_deg[j] * 0.3))
+                        core::array::from_fn(|j| {
+                            rng.random_range(lim.q_min_deg[j] * limit_fraction..=lim.q_max_deg[j] * limit_fraction)
+                        })
                     })
                     .collect();
                 let tip = |q: &[f64; 3], s: f64| {
@@ -570,5 +597,49 @@ mod tests {
         let spec = TrajectorySpec::parse(text, p).unwrap();
         let e = spec.to_joint_space(&Robot::paper_default(), p).unwrap_err().to_string();
         assert!(e.contains("not reachable"), "{e}");
+    }
+
+    #[test]
+    fn random_limit_fraction_scales_the_path_and_defaults_to_the_measured_paths() {
+        let robot = Robot::paper_default();
+        let p = Path::new("r.toml");
+        let file = |extra: &str| {
+            format!(
+                "name='r'\njaw_opening={{mean_deg=10}}\nq_yaw={{mean_deg=0}}\n\
+                 [path]\nkind='random'\nwaypoints=5\nseed=7\n{extra}"
+            )
+        };
+        let span = |t: &JointTrajectory| {
+            (0..3)
+                .map(|j| {
+                    let (lo, hi) = t
+                        .q_deg
+                        .iter()
+                        .fold((f64::MAX, f64::MIN), |(lo, hi), q| (lo.min(q[j]), hi.max(q[j])));
+                    hi - lo
+                })
+                .sum::<f64>()
+        };
+        let default = TrajectorySpec::parse(&file(""), p).unwrap();
+        let explicit = TrajectorySpec::parse(&file("limit_fraction=0.3"), p).unwrap();
+        assert_eq!(
+            default, explicit,
+            "the default must stay the fraction the shipped paths were measured with"
+        );
+        let small = explicit.to_joint_space(&robot, p).unwrap();
+        let large = TrajectorySpec::parse(&file("limit_fraction=0.5"), p)
+            .unwrap()
+            .to_joint_space(&robot, p)
+            .unwrap();
+        assert!(
+            span(&large) > 1.3 * span(&small),
+            "{} vs {}",
+            span(&large),
+            span(&small)
+        );
+        for bad in ["limit_fraction=0", "limit_fraction=1.5", "limit_fraction=nan"] {
+            let e = TrajectorySpec::parse(&file(bad), p).unwrap_err().to_string();
+            assert!(e.contains("limit_fraction"), "{bad}: {e}");
+        }
     }
 }
