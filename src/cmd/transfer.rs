@@ -111,6 +111,10 @@ pub struct Recipe {
     pub early_stop: Option<usize>,
     /// `train --seq-len`.
     pub seq_len: usize,
+    /// Per-architecture `epochs` / `early_stop` replacing the two above for that architecture
+    /// (an LSTM epoch costs about 25 TCN epochs, and the LSTM inverse overfits after ~15).
+    #[serde(default)]
+    pub per_arch: std::collections::BTreeMap<String, ArchTraining>,
     /// `train --threads` (default: the machine's cores / --jobs); results do not depend on it.
     #[serde(default)]
     pub threads: Option<usize>,
@@ -127,6 +131,16 @@ pub struct Recipe {
     pub tune: bool,
     /// `tune --base`: the controller config the unit's is made from.
     pub base_controller: PathBuf,
+}
+
+/// `[recipe.per_arch.ARCH]`: what differs for one architecture.
+#[derive(Debug, Clone, Default, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ArchTraining {
+    #[serde(default)]
+    pub epochs: Option<usize>,
+    #[serde(default)]
+    pub early_stop: Option<usize>,
 }
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
@@ -180,6 +194,16 @@ impl TransferConfig {
         }
         if r.early_stop == Some(0) {
             return Err("recipe.early_stop: must be at least 1 (or left out)".into());
+        }
+        for (arch, o) in &r.per_arch {
+            if !r.archs.contains(arch) {
+                return Err(format!("recipe.per_arch.{arch}: not one of recipe.archs {:?}", r.archs));
+            }
+            if o.epochs == Some(0) || o.early_stop == Some(0) {
+                return Err(format!(
+                    "recipe.per_arch.{arch}: epochs and early_stop must be at least 1"
+                ));
+            }
         }
         if r.seq_len == 0 {
             return Err("recipe.seq_len: must be at least 1".into());
@@ -250,12 +274,21 @@ impl TransferConfig {
 }
 
 impl Recipe {
+    /// `train --epochs` and `--early-stop` for `arch`.
+    fn training(&self, arch: &str) -> (usize, Option<usize>) {
+        match self.per_arch.get(arch) {
+            Some(o) => (o.epochs.unwrap_or(self.epochs), o.early_stop.or(self.early_stop)),
+            None => (self.epochs, self.early_stop),
+        }
+    }
+
     /// The `--quick` recipe: every step runs, cheaply.
     fn quick(&self) -> Recipe {
         Recipe {
             samples: 30,
             epochs: 2,
             early_stop: None,
+            per_arch: Default::default(),
             seq_len: 10,
             repeats: 1,
             max_points: Some(8),
@@ -778,6 +811,7 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
             for direction in ["forward", "inverse"] {
                 let model = models.join(format!("{arch}_{direction}_L{}.onnx", r.seq_len));
                 let (json, svg) = bowden_learning::report::sidecar_paths(&model);
+                let (epochs, early_stop) = r.training(arch);
                 let mut args: Vec<String> = vec![
                     "train".into(),
                     "--arch".into(),
@@ -787,9 +821,9 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
                     "--seq-len".into(),
                     r.seq_len.to_string(),
                     "--epochs".into(),
-                    r.epochs.to_string(),
+                    epochs.to_string(),
                 ];
-                if let Some(e) = r.early_stop {
+                if let Some(e) = early_stop {
                     args.extend(["--early-stop".into(), e.to_string()]);
                 }
                 args.extend([
@@ -1426,7 +1460,7 @@ fn markdown(rep: &Report) -> String {
         out,
         "1. plant: the family's plant file with `[variation] unit = N`\n\
          2. `bowden collect --samples {} --seed {} --excitation {}`\n\
-         3. `bowden train --seq-len {} --epochs {}{}` for {} × forward, inverse\n\
+         3. `bowden train --seq-len {} --epochs {}{}` for {} × forward, inverse{}\n\
          4. {}\n\
          5. `bowden evaluate --repeats {} --trajectories {} --controllers {}{}` on the unit's plant\n",
         r.samples,
@@ -1436,6 +1470,16 @@ fn markdown(rep: &Report) -> String {
         r.epochs,
         r.early_stop.map(|e| format!(" --early-stop {e}")).unwrap_or_default(),
         r.archs.join(", "),
+        r.per_arch
+            .keys()
+            .map(|a| {
+                let (e, es) = r.training(a);
+                format!(
+                    "; {a}: `--epochs {e}{}`",
+                    es.map(|x| format!(" --early-stop {x}")).unwrap_or_default()
+                )
+            })
+            .collect::<String>(),
         if r.tune {
             format!(
                 "`bowden tune --base {}` with every trained model",
@@ -2130,6 +2174,28 @@ heldout_units = [1, 2]
         assert!(e.contains("recipe.controllers"), "{e}");
         let e = cfg(&OK.replace("heldout_units = [1, 2]", "heldout_units = [1, 2]\ntuning_units = [2]")).unwrap_err();
         assert!(e.contains("family[0].heldout_units"), "{e}");
+        let per_arch = |t: &str| OK.replace("[[family]]", &format!("[recipe.per_arch.{t}\n[[family]]"));
+        let e = cfg(&per_arch("lstm]\nepochs = 5")).unwrap_err();
+        assert!(e.contains("recipe.per_arch.lstm"), "{e}");
+        let e = cfg(&per_arch("tcn]\nepochs = 0")).unwrap_err();
+        assert!(e.contains("recipe.per_arch.tcn"), "{e}");
+        let e = cfg(&per_arch("tcn]\nepoch = 5")).unwrap_err();
+        assert!(e.contains("epoch"), "{e}");
+    }
+
+    #[test]
+    fn per_arch_training_overrides_only_its_architecture() {
+        let text = OK
+            .replace("archs = [\"tcn\"]", "archs = [\"tcn\", \"lstm\"]\nearly_stop = 40")
+            .replace(
+                "[[family]]",
+                "[recipe.per_arch.lstm]\nepochs = 30\nearly_stop = 8\n[[family]]",
+            );
+        let c = cfg(&text).unwrap();
+        assert_eq!(c.recipe.training("tcn"), (3, Some(40)));
+        assert_eq!(c.recipe.training("lstm"), (30, Some(8)));
+        let q = c.recipe.quick();
+        assert_eq!((q.training("tcn"), q.training("lstm")), ((2, None), (2, None)));
     }
 
     #[test]
