@@ -1,8 +1,11 @@
 //! `bowden evaluate`: tracking of unseen task-space trajectories through the full
 //! multi-process pipeline in lockstep, for each controller and repeat (paper §V, Tables V–VI).
+//! `bowden evaluate --session MINUTES`: the same trajectories looped through one pipeline for
+//! MINUTES of simulated time, the error over time (cable slack scenarios, issue #13).
 
 use anyhow::{bail, Context, Result};
 use bowden_evaluation::report::{summarise, write_report};
+use bowden_evaluation::session::{self, SlackEvents};
 use bowden_evaluation::{camera_fps_for, pipeline_variant, run_trajectory, EvalSettings, RunSpec, CONTROLLERS};
 use bowden_kinematics::Robot;
 use bowden_runtime::config::{Overrides, PipelineConfig};
@@ -29,9 +32,9 @@ pub struct EvaluateArgs {
     #[arg(long, value_delimiter = ',', default_value = "uncalibrated,paper,newton")]
     pub controllers: Vec<String>,
     /// Runs of every (trajectory, controller), each with its own seed (camera noise; with
-    /// `--units per-repeat` also the plant unit).
-    #[arg(long, default_value_t = 5)]
-    pub repeats: u32,
+    /// `--units per-repeat` also the plant unit). Default 5; 1 with `--session`.
+    #[arg(long)]
+    pub repeats: Option<u32>,
     /// Which manufactured unit of the plant runs: `configured` (the plant file's
     /// `variation.unit`, the robot the models were trained on, as the paper evaluated) or
     /// `per-repeat` (repeat r runs unit seed + r: other units of the same design, a transfer test).
@@ -51,12 +54,21 @@ pub struct EvaluateArgs {
     /// Compensator config (models, refinement settings) replacing the pipeline's.
     #[arg(long)]
     pub controller_config: Option<PathBuf>,
-    /// Directory for report.md, report.json and the plots.
-    #[arg(long, default_value = "out/evaluate")]
-    pub report: PathBuf,
+    /// Directory for report.md, report.json and the plots (default out/evaluate; with
+    /// `--session`, session.md, session.json and its plots, default out/evaluate-session).
+    #[arg(long)]
+    pub report: Option<PathBuf>,
     /// Also write the summary JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// One long tracking session instead: the trajectories played one after another in a loop
+    /// through ONE pipeline (the plant is never restarted: its creep and slips carry over) for
+    /// MINUTES of simulated time, per controller; reports the error per `--window-s` window.
+    #[arg(long, value_name = "MINUTES")]
+    pub session: Option<f64>,
+    /// With `--session`: the length of a window of the error-over-time tables, s.
+    #[arg(long, default_value_t = 60.0, value_name = "SECONDS")]
+    pub window_s: f64,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -123,7 +135,19 @@ fn describe_controller(pipeline: &std::path::Path) -> String {
     find().unwrap_or_else(|| "controller config not readable".into())
 }
 
-fn evaluate(a: EvaluateArgs) -> Result<()> {
+/// What `evaluate` and `evaluate --session` both prepare: the checked arguments, the robot,
+/// the trajectories as joint paths, one pipeline file per controller, the run settings.
+struct Prepared {
+    robot: Robot,
+    paths: Vec<bowden_trajectory::task_space::JointTrajectory>,
+    pipelines: Vec<PathBuf>,
+    settings: EvalSettings,
+    repeats: u32,
+    report: PathBuf,
+    tick_ns: u64,
+}
+
+fn prepare(a: &EvaluateArgs, default_repeats: u32, default_report: &str) -> Result<Prepared> {
     for c in &a.controllers {
         if !CONTROLLERS.contains(&c.as_str()) {
             bail!(
@@ -132,9 +156,11 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
             );
         }
     }
-    if a.repeats == 0 || a.settle_ticks == 0 {
+    let repeats = a.repeats.unwrap_or(default_repeats);
+    if repeats == 0 || a.settle_ticks == 0 {
         bail!("--repeats and --settle-ticks must be at least 1");
     }
+    let report = a.report.clone().unwrap_or_else(|| PathBuf::from(default_report));
     let robot = Robot::load(&a.robot)?;
     let mut paths = Vec::new();
     for name in &a.trajectories {
@@ -146,7 +172,7 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
         }
         paths.push(t);
     }
-    let work_dir = a.report.join("pipelines");
+    let work_dir = report.join("pipelines");
     let tick_ns = PipelineConfig::load(&a.config, &Overrides::default())?.period_ns();
     let fps = camera_fps_for(a.settle_ticks, tick_ns);
     let mut pipelines = Vec::new();
@@ -172,7 +198,7 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
     }
     let settings = EvalSettings {
         settle_ticks: a.settle_ticks,
-        repeats: a.repeats,
+        repeats,
         seed0: a.seed,
         work_dir,
         prefix_stem: format!("bev{}_", std::process::id()),
@@ -181,18 +207,64 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
             ..LaunchOptions::current_exe().context("locating the bowden executable")?
         },
     };
-    let total: u64 =
-        paths.iter().map(|t| t.q_deg.len() as u64).sum::<u64>() * a.controllers.len() as u64 * u64::from(a.repeats);
+    Ok(Prepared {
+        robot,
+        paths,
+        pipelines,
+        settings,
+        repeats,
+        report,
+        tick_ns,
+    })
+}
+
+fn progress_bar(total: u64) -> ProgressBar {
     let bar = ProgressBar::new(total);
     bar.set_style(
         ProgressStyle::with_template("{msg:32} [{bar:30}] {pos}/{len} points  {per_sec}  eta {eta}")
             .unwrap_or_else(|_| ProgressStyle::default_bar())
             .progress_chars("=> "),
     );
+    bar
+}
+
+/// "plant FILE (unit …)" of the report headers.
+fn describe_plant(a: &EvaluateArgs, repeats: u32) -> Result<(bowden_plant::PlantConfig, String)> {
+    let plant_cfg = bowden_plant::PlantConfig::load_or_shipped(a.plant.as_deref())?;
+    let plant_name = a
+        .plant
+        .as_ref()
+        .map(|p| p.display().to_string())
+        .unwrap_or_else(|| "configs/plant.toml".into());
+    let units = match (a.units, plant_cfg.variation.unit) {
+        (Units::Configured, Some(u)) => format!("unit {u}"),
+        (Units::Configured, None) | (Units::PerRepeat, _) => {
+            format!("units {}..={}, one per repeat", a.seed, a.seed + u64::from(repeats) - 1)
+        }
+    };
+    Ok((plant_cfg, format!("plant {plant_name} ({units})")))
+}
+
+fn evaluate(a: EvaluateArgs) -> Result<()> {
+    if let Some(minutes) = a.session {
+        return evaluate_session(&a, minutes);
+    }
+    let Prepared {
+        robot,
+        paths,
+        pipelines,
+        settings,
+        repeats,
+        report,
+        ..
+    } = prepare(&a, 5, "out/evaluate")?;
+    let total: u64 =
+        paths.iter().map(|t| t.q_deg.len() as u64).sum::<u64>() * a.controllers.len() as u64 * u64::from(repeats);
+    let bar = progress_bar(total);
     let mut runs = Vec::new();
     for t in &paths {
         for (c, pipeline) in a.controllers.iter().zip(&pipelines) {
-            for r in 0..a.repeats {
+            for r in 0..repeats {
                 bar.set_message(format!("{} / {c} / #{r}", t.name));
                 let approach = approach_path(&t.q_deg);
                 let spec = RunSpec {
@@ -210,40 +282,31 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
     }
     bar.finish_and_clear();
     let summary = summarise(&robot, &runs);
-    let plant_cfg = bowden_plant::PlantConfig::load_or_shipped(a.plant.as_deref())?;
-    let plant_name = a
-        .plant
-        .as_ref()
-        .map(|p| p.display().to_string())
-        .unwrap_or_else(|| "configs/plant.toml".into());
-    let units = match (a.units, plant_cfg.variation.unit) {
-        (Units::Configured, Some(u)) => format!("unit {u}"),
-        (Units::Configured, None) | (Units::PerRepeat, _) => format!(
-            "units {}..={}, one per repeat",
-            a.seed,
-            a.seed + u64::from(a.repeats) - 1
-        ),
-    };
+    let (_, plant) = describe_plant(&a, repeats)?;
     let header = format!(
-        "{} trajectories × {} controllers × {} repeats; points held {} ticks; pipeline {}; robot {}; plant {} ({}); {}.",
+        "{} trajectories × {} controllers × {} repeats; points held {} ticks; pipeline {}; robot {}; {}; {}.",
         a.trajectories.len(),
         a.controllers.len(),
-        a.repeats,
+        repeats,
         a.settle_ticks,
         a.config.display(),
         a.robot.display(),
-        plant_name,
-        units,
+        plant,
         pipelines
             .first()
             .map(|p| describe_controller(p))
             .unwrap_or_else(|| "no controller".into())
     );
-    let files = write_report(&robot, &runs, &summary, &header, &a.report)?;
+    let files = write_report(&robot, &runs, &summary, &header, &report)?;
     if let Some(j) = &a.json {
         std::fs::write(j, serde_json::to_string_pretty(&summary)?).with_context(|| format!("{}", j.display()))?;
     }
     print!("{}", bowden_evaluation::report::markdown(&summary, &header));
+    print_files(&files);
+    Ok(())
+}
+
+fn print_files(files: &[PathBuf]) {
     eprintln!(
         "report: {}",
         files
@@ -252,5 +315,124 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
             .collect::<Vec<_>>()
             .join(", ")
     );
+}
+
+/// The plant file's `[drift]` as the session reports it: onset, marks for the plots, one line.
+fn slack_events(cfg: &bowden_plant::PlantConfig, robot: &Robot) -> SlackEvents {
+    let d = &cfg.drift;
+    let name = |i: usize| {
+        robot
+            .config
+            .cables
+            .get(i)
+            .map(|c| c.name.clone())
+            .unwrap_or_else(|| format!("w{}", i + 1))
+    };
+    let mut marks = Vec::new();
+    let mut parts = Vec::new();
+    let creeping: Vec<usize> = (0..d.rate_mm_per_hour.len())
+        .filter(|&i| d.rate_mm_per_hour[i] > 0.0 && d.max_mm > 0.0)
+        .collect();
+    if !creeping.is_empty() {
+        let rates: Vec<String> = creeping
+            .iter()
+            .map(|&i| format!("{} {} mm/h", name(i), d.rate_mm_per_hour[i]))
+            .collect();
+        let fastest = creeping.iter().map(|&i| d.rate_mm_per_hour[i]).fold(0.0, f64::max);
+        let full_s = d.start_s + 3600.0 * d.max_mm / fastest;
+        parts.push(format!(
+            "creep {} from {:.0} s, up to {} mm (reached at {:.0} s)",
+            rates.join(", "),
+            d.start_s,
+            d.max_mm,
+            full_s
+        ));
+        marks.push((format!("creep starts ({:.0} s)", d.start_s), d.start_s));
+        marks.push((format!("creep reaches {} mm ({full_s:.0} s)", d.max_mm), full_s));
+    }
+    for sl in &d.slip {
+        let what = format!("{} slips {} mm at {:.0} s", name(sl.cable - 1), sl.mm, sl.at_s);
+        marks.push((what.clone(), sl.at_s));
+        parts.push(what);
+    }
+    SlackEvents {
+        onset_s: d.onset_s(),
+        marks,
+        description: if parts.is_empty() {
+            "no creep, no slip".into()
+        } else {
+            parts.join("; ")
+        },
+    }
+}
+
+/// `bowden evaluate --session MINUTES`: the trajectories looped through one lockstep pipeline
+/// per controller (and repeat) for MINUTES of simulated time; error over time.
+fn evaluate_session(a: &EvaluateArgs, minutes: f64) -> Result<()> {
+    if !(minutes.is_finite() && minutes > 0.0 && minutes <= 24.0 * 60.0) {
+        bail!("--session: MINUTES must be in (0, 1440], got {minutes}");
+    }
+    if !(a.window_s.is_finite() && a.window_s > 0.0) {
+        bail!("--window-s must be a positive number of seconds, got {}", a.window_s);
+    }
+    let Prepared {
+        robot,
+        paths,
+        pipelines,
+        settings,
+        repeats,
+        report,
+        tick_ns,
+    } = prepare(a, 1, "out/evaluate-session")?;
+    let trajectories: Vec<(String, Vec<bowden_kinematics::JointsDeg>)> =
+        paths.iter().map(|t| (t.name.clone(), t.q_deg.clone())).collect();
+    let connect = |x: &bowden_kinematics::JointsDeg, y: &bowden_kinematics::JointsDeg| {
+        bowden_trajectory::interpolate_eq16(&[*x, *y])
+    };
+    let plan = session::plan(&trajectories, minutes * 60.0, a.settle_ticks, tick_ns, &connect)?;
+    let total = plan.q_path.len() as u64 * a.controllers.len() as u64 * u64::from(repeats);
+    let bar = progress_bar(total);
+    let mut runs = Vec::new();
+    for (c, pipeline) in a.controllers.iter().zip(&pipelines) {
+        for r in 0..repeats {
+            bar.set_message(format!("session / {c} / #{r}"));
+            let spec = RunSpec {
+                pipeline_file: pipeline,
+                name: "session",
+                controller: c,
+                repeat: r,
+                approach: &plan.approach,
+                q_path: &plan.q_path,
+            };
+            runs.push(run_trajectory(&spec, &settings, &mut || bar.inc(1))?);
+        }
+    }
+    bar.finish_and_clear();
+    let (plant_cfg, plant) = describe_plant(a, repeats)?;
+    let slack = slack_events(&plant_cfg, &robot);
+    let summary = session::analyse(&robot, &plan, &runs, a.window_s, &slack)?;
+    let header = format!(
+        "Session of {:.1} simulated minutes ({} points per run, trajectories {} looped) × {} controllers × {} \
+         repeats; points held {} ticks; pipeline {}; robot {}; {}; {}.",
+        plan.duration_s / 60.0,
+        plan.q_path.len(),
+        a.trajectories.join(", "),
+        a.controllers.len(),
+        repeats,
+        a.settle_ticks,
+        a.config.display(),
+        a.robot.display(),
+        plant,
+        pipelines
+            .first()
+            .map(|p| describe_controller(p))
+            .unwrap_or_else(|| "no controller".into())
+    );
+    let files = session::write(&summary, &plan, &runs, &header, &report)?;
+    if let Some(j) = &a.json {
+        std::fs::write(j, serde_json::to_string_pretty(&summary)?).with_context(|| format!("{}", j.display()))?;
+    }
+    print!("{}", session::markdown(&summary, &header));
+    print_files(&files);
     Ok(())
 }

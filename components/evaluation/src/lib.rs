@@ -6,6 +6,7 @@
 
 pub mod metrics;
 pub mod report;
+pub mod session;
 
 use bowden_interfaces::{CompensationMode, JointEstimate};
 use bowden_kinematics::{JointsDeg, N_JOINTS};
@@ -47,6 +48,10 @@ pub struct PointRecord {
     /// the refinement left.
     pub q_predicted_deg: Option<JointsDeg>,
     pub refine_iterations: u32,
+    /// The plant's simulated time at the measurement, ns (the session's clock; not written to
+    /// `bowden evaluate`'s report.json, whose points are indexed by their position).
+    #[serde(skip)]
+    pub t_sim_ns: u64,
 }
 
 /// One run: a trajectory, a controller, a repeat.
@@ -302,6 +307,7 @@ pub fn run_trajectory(
                 q_predicted_deg: (cmd.mode != CompensationMode::Uncalibrated as u32)
                     .then(|| take(&cmd.q_predicted_deg)),
                 refine_iterations: cmd.iterations,
+                t_sim_ns: state.t_sim_ns,
             });
             on_point();
         }

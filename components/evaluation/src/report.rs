@@ -44,7 +44,9 @@ impl Summary {
     }
 }
 
-fn pool(robot: &Robot, trajectory: &str, controller: &str, runs: &[&RunRecord]) -> Cell {
+/// Table V and VI of `runs` pooled into one cell labelled (`trajectory`, `controller`).
+/// `invalid_estimates` is the sum of the runs' own counts.
+pub fn pool(robot: &Robot, trajectory: &str, controller: &str, runs: &[&RunRecord]) -> Cell {
     let mut task_v = Vec::new();
     let mut task_t = Vec::new();
     let mut joint_v: Vec<(JointsDeg, JointsDeg)> = Vec::new();
@@ -264,6 +266,9 @@ const COLOURS: [RGBColor; 4] = [
     RGBColor(150, 80, 180),
 ];
 
+/// Event markers (vertical lines): black, orange, grey.
+const MARKER_COLOURS: [RGBColor; 3] = [RGBColor(0, 0, 0), RGBColor(230, 130, 0), RGBColor(120, 120, 120)];
+
 type Range = std::ops::Range<f64>;
 
 /// One SVG line chart: an optional black reference line and coloured series, with a legend.
@@ -271,11 +276,39 @@ fn line_plot(
     file: &Path,
     size: (u32, u32),
     caption: &str,
+    axes: (&str, &str),
+    ranges: (Range, Range),
+    reference: Option<(&str, &[(f64, f64)])>,
+    series: &[(String, Vec<(f64, f64)>)],
+) -> Result<(), EvalError> {
+    line_plot_marked(
+        file,
+        size,
+        caption,
+        axes,
+        ranges,
+        reference,
+        series,
+        &[],
+        SeriesLabelPosition::MiddleRight,
+    )
+}
+
+/// [`line_plot`] with vertical marker lines at the given x values, each in the legend (events on
+/// a time axis: a slip, the start of creep), and the legend where it is asked for.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn line_plot_marked(
+    file: &Path,
+    size: (u32, u32),
+    caption: &str,
     (x_desc, y_desc): (&str, &str),
     (x_range, y_range): (Range, Range),
     reference: Option<(&str, &[(f64, f64)])>,
     series: &[(String, Vec<(f64, f64)>)],
+    markers: &[(String, f64)],
+    legend: SeriesLabelPosition,
 ) -> Result<(), EvalError> {
+    let (y_lo, y_hi) = (y_range.start, y_range.end);
     let err = |e: &dyn std::fmt::Display| plot_err(e, file);
     let root = SVGBackend::new(file, size).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(&e))?;
@@ -299,6 +332,14 @@ fn line_plot(
             .label(name)
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(3)));
     }
+    for (i, (name, x)) in markers.iter().enumerate() {
+        let c = MARKER_COLOURS[i % MARKER_COLOURS.len()];
+        chart
+            .draw_series(LineSeries::new([(*x, y_lo), (*x, y_hi)], c.stroke_width(2)))
+            .map_err(|e| err(&e))?
+            .label(name.clone())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+    }
     for (i, (name, v)) in series.iter().enumerate() {
         let c = COLOURS[i % COLOURS.len()];
         chart
@@ -309,6 +350,7 @@ fn line_plot(
     }
     chart
         .configure_series_labels()
+        .position(legend)
         .background_style(WHITE.mix(0.8))
         .border_style(BLACK)
         .draw()

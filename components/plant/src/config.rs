@@ -174,14 +174,64 @@ pub struct DynamicsConfig {
     pub time_constant_s: f64,
 }
 
-/// Slow cable creep (slack) for adaptation scenarios. All zero = off.
+/// Largest number of `[[drift.slip]]` entries (the plant holds them in a fixed array).
+pub const MAX_SLIPS: usize = 16;
+
+/// Cable slack for adaptation scenarios: a slow creep of every cable and sudden slips of single
+/// cables. All rates zero and no slips = off.
+///
+/// The slack of cable i at simulated time t is
+/// `min(rate_i · max(t − start_s, 0), max_mm) + Σ mm over the slips of cable i with at_s ≤ t`:
+/// its distal end sits that much further out, and the pair's pre-tension drops with it (each
+/// family's docs say what else follows).
 #[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct DriftConfig {
     /// Creep rate of each cable, mm per hour of simulated time.
     pub rate_mm_per_hour: [f64; N_CABLES],
-    /// Creep saturates at this length, mm.
+    /// Creep saturates at this length, mm (slips come on top).
     pub max_mm: f64,
+    /// Simulated time at which creep starts, s (absent = 0: from the start).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub start_s: f64,
+    /// `[[drift.slip]]`: sudden slips, each a step of one cable's slack (absent = none).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub slip: Vec<SlipConfig>,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
+
+/// `[[drift.slip]]`: one cable slips at its termination by `mm` at simulated time `at_s` (a step
+/// of its slack that stays).
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SlipConfig {
+    /// When, s of simulated time (the first step that ends at or after it applies the slip).
+    pub at_s: f64,
+    /// Which cable, 1-based as the robot's w1..w10 (configs/robot.toml's cable order).
+    pub cable: usize,
+    /// How far its distal end slips out, mm.
+    pub mm: f64,
+}
+
+impl DriftConfig {
+    /// Whether any creep or slip is configured.
+    pub fn is_active(&self) -> bool {
+        self.creeps() || !self.slip.is_empty()
+    }
+
+    fn creeps(&self) -> bool {
+        self.max_mm > 0.0 && self.rate_mm_per_hour.iter().any(|&r| r > 0.0)
+    }
+
+    /// Simulated time at which slack first appears (creep start or the earliest slip), s; None
+    /// without any.
+    pub fn onset_s(&self) -> Option<f64> {
+        let creep = self.creeps().then_some(self.start_s);
+        self.slip.iter().map(|s| s.at_s).chain(creep).reduce(f64::min)
+    }
 }
 
 /// Seeded manufacturing variation: every plant instance (seed) is a slightly different robot.
@@ -373,6 +423,34 @@ impl PlantConfig {
         )?;
         let m = self.drift.max_mm;
         check("drift.max_mm".into(), m, m >= 0.0, "≥ 0 mm")?;
+        let st = self.drift.start_s;
+        check("drift.start_s".into(), st, (0.0..=1e7).contains(&st), "in [0, 1e7] s")?;
+        if self.drift.slip.len() > MAX_SLIPS {
+            return Err(bad(
+                "drift.slip".into(),
+                format!("at most {MAX_SLIPS} slips, got {}", self.drift.slip.len()),
+            ));
+        }
+        for (k, sl) in self.drift.slip.iter().enumerate() {
+            check(
+                format!("drift.slip[{k}].at_s"),
+                sl.at_s,
+                (0.0..=1e7).contains(&sl.at_s),
+                "in [0, 1e7] s",
+            )?;
+            if !(1..=N_CABLES).contains(&sl.cable) {
+                return Err(bad(
+                    format!("drift.slip[{k}].cable"),
+                    format!("must be 1..={N_CABLES} (w1..w{N_CABLES}), got {}", sl.cable),
+                ));
+            }
+            check(
+                format!("drift.slip[{k}].mm"),
+                sl.mm,
+                sl.mm > 0.0 && sl.mm <= 5.0,
+                "in (0, 5] mm",
+            )?;
+        }
         let v = self.variation.relative_sd;
         check(
             "variation.relative_sd".into(),

@@ -14,7 +14,7 @@
 //!    cable, with φ = the sheath wrap plus the bend of every segment the cable crosses inside
 //!    the manipulator, and T its present tension;
 //! 2. the cable stretches elastically by its mean capstan stretch c·T·sinh(μφ)/μφ (relative
-//!    to the straight pose), and creeps by its slack if drift is on;
+//!    to the straight pose), and sits out by its slack (`[drift]`: creep and slips) if any;
 //! 3. the distal displacements go back through the inverse cable equation
 //!    (`joints_from_displacements`: pair differences → joints), so segment-1 → segment-2 and
 //!    wrist → forceps coupling comes from the routing (a distal cable's lag as segment 1 moves
@@ -38,7 +38,7 @@ use bowden_interfaces::PlantState;
 use bowden_kinematics::cables::CableError;
 use bowden_kinematics::{JointsDeg, Robot, N_CABLES, N_JOINTS};
 
-use crate::config::{FamilyKind, PlantConfig, MAX_PLAYS};
+use crate::config::{FamilyKind, PlantConfig, MAX_PLAYS, MAX_SLIPS};
 use crate::families::{bouc_wen, lugre, pair_creep, Shared, BEND_JOINTS};
 use crate::hysteresis::{capstan_half_width_mm, capstan_mean_stretch_mm, play, threshold_scales};
 
@@ -173,6 +173,11 @@ pub struct Plant {
     tau_s: f64,
     drift_mm_per_s: [f64; N_CABLES],
     drift_max_mm: f64,
+    /// Simulated time creep starts at, ns.
+    drift_start_ns: u64,
+    /// `[[drift.slip]]`: (time ns, cable index 0-based, mm); the first `n_slips` are used.
+    slips: [(u64, usize, f64); MAX_SLIPS],
+    n_slips: usize,
     u_min_mm: [f64; N_CABLES],
     u_max_mm: [f64; N_CABLES],
     family: Family,
@@ -372,6 +377,13 @@ impl Plant {
             }
         };
 
+        // Slips in a fixed array (validation bounds their number; extras are ignored).
+        let mut slips = [(0u64, 0usize, 0.0f64); MAX_SLIPS];
+        let n_slips = config.drift.slip.len().min(MAX_SLIPS);
+        for (dst, sl) in slips.iter_mut().zip(&config.drift.slip) {
+            *dst = (seconds_to_ns(sl.at_s), sl.cable.clamp(1, N_CABLES) - 1, sl.mm);
+        }
+
         // Relaxed at the straight command: the joints sit at their zero offsets.
         let offset_rad = j.offset_deg.map(f64::to_radians);
         let q0 = robot.clamp_to_limits(&j.offset_deg);
@@ -410,6 +422,9 @@ impl Plant {
             tau_s: config.dynamics.time_constant_s,
             drift_mm_per_s: config.drift.rate_mm_per_hour.map(|r| r / 3600.0),
             drift_max_mm: config.drift.max_mm,
+            drift_start_ns: seconds_to_ns(config.drift.start_s),
+            slips,
+            n_slips,
             u_min_mm,
             u_max_mm,
             family,
@@ -744,10 +759,23 @@ impl Plant {
             .map_err(PlantError::UndecodableCommand)
     }
 
-    /// Cable creep at time `t_ns`.
+    /// Cable slack at time `t_ns`: creep since `drift.start_s` (saturating at `drift.max_mm`)
+    /// plus every slip whose time has come. Allocation-free.
     fn slack_mm(&self, t_ns: u64) -> [f64; N_CABLES] {
-        let t_s = t_ns as f64 * 1e-9;
-        core::array::from_fn(|i| (self.drift_mm_per_s[i] * t_s).min(self.drift_max_mm))
+        let t_s = t_ns.saturating_sub(self.drift_start_ns) as f64 * 1e-9;
+        let mut slack: [f64; N_CABLES] =
+            core::array::from_fn(|i| (self.drift_mm_per_s[i] * t_s).min(self.drift_max_mm));
+        for &(at_ns, i, mm) in &self.slips[..self.n_slips] {
+            if t_ns >= at_ns {
+                slack[i] += mm;
+            }
+        }
+        slack
+    }
+
+    /// The slack of every cable now (creep plus slips, `[drift]`), mm.
+    pub fn cable_slack_mm(&self) -> [f64; N_CABLES] {
+        self.slack_mm(self.state.t_sim_ns)
     }
 
     /// The quasi-static map Q: joint angles → tensions and wraps → plays (from the committed
@@ -811,4 +839,9 @@ impl Plant {
             tension_n,
         })
     }
+}
+
+/// Seconds of simulated time as the plant's ns clock counts them (as a step of `dt_s` does).
+fn seconds_to_ns(t_s: f64) -> u64 {
+    (t_s.max(0.0) * 1e9).round() as u64
 }

@@ -42,6 +42,14 @@ fn step_settle_and_errors_do_not_allocate() {
     let mut cfg = PlantConfig::paper_default();
     cfg.drift.rate_mm_per_hour = [0.2; 10]; // exercise the creep path too
     real_time_path_does_not_allocate(&cfg);
+    // And slack starting mid-run: creep from 0.3 s, a slip at 0.5 s.
+    cfg.drift.start_s = 0.3;
+    cfg.drift.slip.push(bowden_plant::config::SlipConfig {
+        at_s: 0.5,
+        cable: 3,
+        mm: 0.2,
+    });
+    real_time_path_does_not_allocate(&cfg);
 }
 
 /// The same for the other hysteresis families (configs/plant-boucwen.toml, plant-lugre.toml).
