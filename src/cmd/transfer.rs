@@ -104,6 +104,11 @@ pub struct Recipe {
     pub excitation: String,
     /// `train --arch` for each (both directions each).
     pub archs: Vec<String>,
+    /// Forward models trained only to judge `tune`'s candidates (`tune --judge`), never sent
+    /// commands: a model judging its own refinement rates newton at μ = 0 best because that is
+    /// what it minimises. An architecture here may also be in `archs` (then it is trained once).
+    #[serde(default)]
+    pub judge_archs: Vec<String>,
     /// `train --epochs`.
     pub epochs: usize,
     /// `train --early-stop`.
@@ -195,9 +200,18 @@ impl TransferConfig {
         if r.early_stop == Some(0) {
             return Err("recipe.early_stop: must be at least 1 (or left out)".into());
         }
+        for (i, a) in r.judge_archs.iter().enumerate() {
+            a.parse::<Arch>().map_err(|e| format!("recipe.judge_archs[{i}]: {e}"))?;
+            if r.judge_archs[..i].contains(a) {
+                return Err(format!("recipe.judge_archs: `{a}` appears twice"));
+            }
+        }
         for (arch, o) in &r.per_arch {
-            if !r.archs.contains(arch) {
-                return Err(format!("recipe.per_arch.{arch}: not one of recipe.archs {:?}", r.archs));
+            if !r.archs.contains(arch) && !r.judge_archs.contains(arch) {
+                return Err(format!(
+                    "recipe.per_arch.{arch}: not one of recipe.archs {:?} or recipe.judge_archs {:?}",
+                    r.archs, r.judge_archs
+                ));
             }
             if o.epochs == Some(0) || o.early_stop == Some(0) {
                 return Err(format!(
@@ -754,7 +768,7 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
         bar,
         records: Vec::new(),
         stamps: Default::default(),
-        total_steps: 3 + 2 * r.archs.len(),
+        total_steps: 3 + 2 * r.archs.len() + r.judge_archs.iter().filter(|a| !r.archs.contains(a)).count(),
     };
     let t0 = Instant::now();
     let result = (|| -> std::result::Result<Vec<Row>, Failure> {
@@ -802,13 +816,19 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
             &[],
             std::slice::from_ref(&data),
         )?;
-        // 3. Train every architecture in both directions.
+        // 3. Train every architecture in both directions, and the judges' forward models.
         let models = dir.join("models");
         let _ = std::fs::create_dir_all(&models);
-        let (mut fwd, mut inv) = (Vec::new(), Vec::new());
+        let (mut fwd, mut inv, mut judges) = (Vec::new(), Vec::new(), Vec::new());
         let mut trained = Vec::new();
-        for arch in &r.archs {
-            for direction in ["forward", "inverse"] {
+        let jobs = r.archs.iter().flat_map(|a| [(a, "forward"), (a, "inverse")]).chain(
+            r.judge_archs
+                .iter()
+                .filter(|a| !r.archs.contains(a))
+                .map(|a| (a, "forward")),
+        );
+        for (arch, direction) in jobs {
+            {
                 let model = models.join(format!("{arch}_{direction}_L{}.onnx", r.seq_len));
                 let (json, svg) = bowden_learning::report::sidecar_paths(&model);
                 let (epochs, early_stop) = r.training(arch);
@@ -843,7 +863,12 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
                     &[model.clone(), json, svg],
                 )?;
                 trained.push(name);
-                if direction == "forward" {
+                if r.judge_archs.contains(arch) && direction == "forward" {
+                    judges.push(model.clone());
+                }
+                if !r.archs.contains(arch) {
+                    // A judge only.
+                } else if direction == "forward" {
                     fwd.push(model);
                 } else {
                     inv.push(model);
@@ -855,7 +880,7 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
         let base_text = read_text(&ctx.base_controller);
         let join = |v: &[PathBuf]| v.iter().map(|p| s(p)).collect::<Vec<_>>().join(",");
         let action = if r.tune {
-            Action::Exe(vec![
+            let mut args: Vec<String> = vec![
                 "tune".into(),
                 "--data".into(),
                 s(&data),
@@ -863,11 +888,15 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
                 join(&fwd),
                 "--inverse".into(),
                 join(&inv),
-                "--base".into(),
-                s(&ctx.base_controller),
-                "--out".into(),
-                s(&controller),
-            ])
+            ];
+            // A judge that is also a controller model judges already (tune rates every
+            // candidate by the other forward models).
+            let judge_only: Vec<PathBuf> = judges.iter().filter(|j| !fwd.contains(j)).cloned().collect();
+            if !judge_only.is_empty() {
+                args.extend(["--judge".into(), join(&judge_only)]);
+            }
+            args.extend(["--base".into(), s(&ctx.base_controller), "--out".into(), s(&controller)]);
+            Action::Exe(args)
         } else {
             let (f, i, c, b) = (
                 fwd[0].clone(),
@@ -1460,7 +1489,7 @@ fn markdown(rep: &Report) -> String {
         out,
         "1. plant: the family's plant file with `[variation] unit = N`\n\
          2. `bowden collect --samples {} --seed {} --excitation {}`\n\
-         3. `bowden train --seq-len {} --epochs {}{}` for {} × forward, inverse{}\n\
+         3. `bowden train --seq-len {} --epochs {}{}` for {} × forward, inverse{}{}\n\
          4. {}\n\
          5. `bowden evaluate --repeats {} --trajectories {} --controllers {}{}` on the unit's plant\n",
         r.samples,
@@ -1480,6 +1509,11 @@ fn markdown(rep: &Report) -> String {
                 )
             })
             .collect::<String>(),
+        if r.judge_archs.is_empty() {
+            String::new()
+        } else {
+            format!("; judges (forward only, `tune --judge`): {}", r.judge_archs.join(", "))
+        },
         if r.tune {
             format!(
                 "`bowden tune --base {}` with every trained model",
@@ -2181,6 +2215,19 @@ heldout_units = [1, 2]
         assert!(e.contains("recipe.per_arch.tcn"), "{e}");
         let e = cfg(&per_arch("tcn]\nepoch = 5")).unwrap_err();
         assert!(e.contains("epoch"), "{e}");
+    }
+
+    #[test]
+    fn judge_architectures_are_validated() {
+        let with = |j: &str| OK.replace("archs = [\"tcn\"]", &format!("archs = [\"tcn\"]\njudge_archs = {j}"));
+        assert!(cfg(&with("[\"lstm\"]")).is_ok());
+        let e = cfg(&with("[\"rnn\"]")).unwrap_err();
+        assert!(e.contains("recipe.judge_archs[0]"), "{e}");
+        let e = cfg(&with("[\"lstm\", \"lstm\"]")).unwrap_err();
+        assert!(e.contains("twice"), "{e}");
+        // per_arch may name a judge.
+        let text = with("[\"lstm\"]").replace("[[family]]", "[recipe.per_arch.lstm]\nepochs = 30\n[[family]]");
+        assert_eq!(cfg(&text).unwrap().recipe.training("lstm"), (30, None));
     }
 
     #[test]
