@@ -93,9 +93,10 @@ fn quick_transfer_runs_resumes_and_reports() {
         plant.replace("\nplays = 6\n", "\nplays = \"six\"\n"),
     )
     .unwrap();
+    // An LSTM forward model trained only to judge tune's candidates (`tune --judge`).
     let cfg = config(
         tmp.path(),
-        "",
+        "judge_archs = [\"lstm\"]",
         "[[family]]\nname = \"broken\"\nplant = \"plant-broken.toml\"\nheldout_units = [1]\n",
     );
     let out = tmp.path().join("out");
@@ -197,8 +198,24 @@ fn quick_transfer_runs_resumes_and_reports() {
     let names: Vec<&str> = first.iter().map(|(s, _)| s.as_str()).collect();
     assert_eq!(
         names,
-        ["collect", "train-tcn-forward", "train-tcn-inverse", "tune", "evaluate"]
+        [
+            "collect",
+            "train-tcn-forward",
+            "train-tcn-inverse",
+            "train-lstm-forward",
+            "tune",
+            "evaluate"
+        ]
     );
+    // The judge rates candidates only: tune gets it with --judge, never as a controller model.
+    let tune_stamp = std::fs::read_to_string(unit_dir.join("tune.done")).unwrap();
+    assert!(
+        tune_stamp.contains("--judge") && tune_stamp.contains("lstm_forward_L10.onnx"),
+        "{tune_stamp}"
+    );
+    let controller = std::fs::read_to_string(unit_dir.join("controller.toml")).unwrap();
+    assert!(controller.contains("judge #1: lstm_forward_L10.onnx"), "{controller}");
+    assert!(!controller.contains("model_fwd = \"models/lstm"), "{controller}");
     assert!(first.iter().all(|(_, st)| st == "ran"), "{first:?}");
     for (s, _) in &first {
         assert!(unit_dir.join(format!("{s}.done")).is_file(), "{s}.done");
@@ -218,14 +235,14 @@ fn quick_transfer_runs_resumes_and_reports() {
         v2["units"][0]["rows"], v["units"][0]["rows"],
         "same results from the same files"
     );
-    assert!(stdout2.contains("5 step(s) *"), "{stdout2}");
+    assert!(stdout2.contains("6 step(s) *"), "{stdout2}");
 
     // An unfinished step (no stamp) reruns, with what depends on it; the rest is kept.
     std::fs::remove_file(unit_dir.join("tune.done")).unwrap();
     ok(&bowden(&args));
     let v3: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("transfer.json")).unwrap()).unwrap();
     let st: Vec<String> = steps(&v3).into_iter().map(|(_, s)| s).collect();
-    assert_eq!(st, ["skipped", "skipped", "skipped", "ran", "ran"]);
+    assert_eq!(st, ["skipped", "skipped", "skipped", "skipped", "ran", "ran"]);
 
     // Nothing of the pipelines is left in shared memory.
     let leaked: Vec<String> = shm_pipelines()
