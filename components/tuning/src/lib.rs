@@ -13,8 +13,9 @@
 //!   actually made, its measured q_phy as the targets — through the real [`Compensator`] with
 //!   the safe refinement on, exactly as it would run; the commands it sends are then rated by a
 //!   forward model *other* than the one that chose them (a judge: a model's own rating is what
-//!   its refinement minimised, so it flatters itself), or by the same one when only one was
-//!   trained (the report says which). The lowest judged RMS error |f_judge(q_cmd) − q_desired|
+//!   its refinement minimised, so it flatters itself) — by the judge-only models when some are
+//!   given (one yardstick for every candidate), else by the other forward models, or by the
+//!   same one when only one was trained (the report says which). The lowest judged RMS error |f_judge(q_cmd) − q_desired|
 //!   wins; when no candidate beats sending the targets unchanged, the mode is `uncalibrated`.
 //!
 //! Everything is deterministic (no time budget during the replay, fixed order, ties to the
@@ -425,10 +426,18 @@ pub fn tune(
         warmup: v0 - v0.saturating_sub(warm),
         steps,
     };
-    // Every forward model but the candidate's own, and the judge-only ones.
+    // With judge-only models, they rate every candidate: one yardstick for all. Without, every
+    // forward model but the candidate's own rates it. Cross-judging compares candidates rated by
+    // different models, which favours the forward model whose judge is the most accurate: on
+    // the second robot, the TCN forward's candidates (judged by the 0.9° LSTM) beat the LSTM
+    // forward's (judged by the 3.3° TCN), and the chosen config tracked 5–9 points worse than
+    // the LSTM pair it displaced.
     let raters: Vec<&Model> = fwd.iter().chain(&judge_models).collect();
     let judges: Vec<Vec<usize>> = (0..fwd.len())
         .map(|i| {
+            if !judge_models.is_empty() {
+                return (fwd.len()..raters.len()).collect();
+            }
             let others: Vec<usize> = (0..raters.len()).filter(|&k| k != i).collect();
             if others.is_empty() {
                 vec![i]

@@ -103,6 +103,15 @@ fn settings_come_from_validation_data_and_reproduce_bit_for_bit() {
     for (x, y) in c.report.candidates.iter().zip(&a.report.candidates) {
         assert_eq!(x.judged_rmse_deg, y.judged_rmse_deg);
     }
+
+    // With a judge-only model and several forward models, the judge rates every candidate (one
+    // yardstick), the forward models do not rate each other.
+    let both = tune(&ds, &fwd, &inv, &base, &robot, &solo, &mut |_, _| {}).unwrap();
+    assert_eq!(both.report.judges, vec![vec![2], vec![2]]);
+    // Forward #0's candidates: the same judge as in the single-forward run, the same scores.
+    for (x, y) in both.report.candidates.iter().zip(&c.report.candidates) {
+        assert_eq!((x.forward, x.judged_rmse_deg), (y.forward, y.judged_rmse_deg));
+    }
 }
 
 #[test]
