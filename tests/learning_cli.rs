@@ -37,6 +37,11 @@ fn import_csv_and_npy_with_clear_errors() {
     ]));
     assert!(stdout.contains("2 samples (2 valid), 2 joints"), "{stdout}");
     assert!(out_dir.join("manifest.json").exists() && out_dir.join("dataset.csv").exists());
+    // The dataset is kept unless --force.
+    fails_with(
+        &bowden(&["import", "--csv", &csv_s, "--out", &out_s]),
+        &["dataset.csv", "exists", "--force"],
+    );
 
     fails_with(
         &bowden(&[
@@ -49,6 +54,7 @@ fn import_csv_and_npy_with_clear_errors() {
             "m1,m2",
             "--out",
             &out_s,
+            "--force",
         ]),
         &["log.csv", "nope"],
     );
@@ -58,7 +64,16 @@ fn import_csv_and_npy_with_clear_errors() {
     write_npy_f64(&p, 3, 4, &[0.0; 12]).unwrap();
     let (c_s, p_s) = (c.display().to_string(), p.display().to_string());
     fails_with(
-        &bowden(&["import", "--npy-cmd", &c_s, "--npy-phy", &p_s, "--out", &out_s]),
+        &bowden(&[
+            "import",
+            "--npy-cmd",
+            &c_s,
+            "--npy-phy",
+            &p_s,
+            "--out",
+            &out_s,
+            "--force",
+        ]),
         &["phy.npy", "(3, 4)"],
     );
     write_npy_f64(&p, 3, 5, &[0.1; 15]).unwrap();
@@ -74,6 +89,7 @@ fn import_csv_and_npy_with_clear_errors() {
         "1,3",
         "--out",
         &out_s,
+        "--force",
     ]));
     assert!(stdout.contains("3 samples (3 valid), 2 joints"), "{stdout}");
 }
@@ -135,6 +151,21 @@ fn train_writes_model_report_and_plot() {
         ]),
         &["--arch", "gru"],
     );
+    // The model is kept unless --force.
+    fails_with(
+        &bowden(&[
+            "train",
+            "--arch",
+            "tcn",
+            "--direction",
+            "forward",
+            "--data",
+            &data,
+            "--out",
+            &model_s,
+        ]),
+        &["tcn_forward.onnx", "exists", "--force"],
+    );
     let missing = tmp.path().join("nothing").display().to_string();
     fails_with(
         &bowden(&[
@@ -147,6 +178,7 @@ fn train_writes_model_report_and_plot() {
             &missing,
             "--out",
             &model_s,
+            "--force",
         ]),
         &["nothing", "manifest.json"],
     );

@@ -48,6 +48,7 @@ fn characterize_prints_json_and_writes_the_plot() {
             "--seed",
             "4",
             "--json",
+            "--force",
             "--plot",
         ])
         .arg(&svg)
@@ -57,7 +58,7 @@ fn characterize_prints_json_and_writes_the_plot() {
 
     // The table names which SD it is.
     let table = bowden()
-        .args(["plant", "characterize", "--samples", "5", "--plot"])
+        .args(["plant", "characterize", "--samples", "5", "--force", "--plot"])
         .arg(&svg)
         .output()
         .unwrap();

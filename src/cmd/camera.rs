@@ -36,6 +36,9 @@ pub enum Command {
         /// Frame index (selects the noise of this frame).
         #[arg(long, default_value_t = 0)]
         frame: u64,
+        /// Overwrite the images if they exist.
+        #[arg(long)]
+        force: bool,
     },
 }
 
@@ -49,7 +52,13 @@ pub fn run(c: Command) -> Result<()> {
             markers,
             seed,
             frame,
-        } => render(&q, &out, &config, &robot, &markers, seed, frame),
+            force,
+        } => {
+            let outs = [out.clone(), sibling(&out, "_depth"), sibling(&out, "_depth_vis")];
+            super::refuse_overwrite(&outs, force, "--out")?;
+            let home = crate::home::path;
+            render(&q, &out, &home(&config)?, &home(&robot)?, &home(&markers)?, seed, frame)
+        }
     }
 }
 
@@ -142,7 +151,7 @@ pub fn bench(c: BenchCommand) -> Result<()> {
     if frames == 0 {
         anyhow::bail!("--frames must be > 0");
     }
-    let cfg = CameraConfig::load(&config)?;
+    let cfg = CameraConfig::load(crate::home::path(&config)?)?;
     let mut cam = SyntheticCamera::new(Robot::paper_default(), MarkerGeometry::paper_default(), cfg, seed);
     let qs = bowden_camera::bench::workspace_configurations(&cam, 256, seed);
     let bar = indicatif::ProgressBar::new(frames);

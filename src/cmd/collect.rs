@@ -17,7 +17,8 @@ use std::path::PathBuf;
 
 #[derive(Args)]
 pub struct CollectArgs {
-    /// Pipeline to run (lockstep; the compensator is forced to `uncalibrated`).
+    /// Pipeline to run (lockstep; the compensator is forced to `uncalibrated`). Pipeline, robot
+    /// and plant files are found as given, under $BOWDEN_HOME, or built in (`bowden shipped`).
     #[arg(long, default_value = "configs/evaluate.toml")]
     pub config: PathBuf,
     /// Robot description (joint limits of the random configurations).
@@ -32,20 +33,25 @@ pub struct CollectArgs {
     /// The paper drew 1,802 (→ 30,707 commands, 256 minutes) with `--excitation paper`.
     #[arg(long, default_value_t = 1500)]
     pub samples: usize,
+    /// Seed of the random configurations, the excitation's jumps and dither, and the run's noise.
     #[arg(long, default_value_t = 2024)]
     pub seed: u64,
     /// Ticks each command is held; the last is measured (5 × 100 ms = the paper's 0.5 s).
     #[arg(long, default_value_t = 5)]
     pub settle_ticks: u32,
-    /// Output directory: dataset.csv + manifest.json.
+    /// Output directory: dataset.csv + manifest.json (and the pipeline it ran in pipeline/).
+    /// An existing dataset there is kept unless --force.
     #[arg(long)]
     pub out: PathBuf,
+    /// Overwrite an existing dataset in --out.
+    #[arg(long)]
+    pub force: bool,
     /// `mixed` (default): eq. (16) with per-segment step multipliers 1–4 and dither up to ±20°,
     /// so the models also learn the jumps a compensator commands on reversals. `paper`: eq. (16)
     /// exactly: models trained on it fit their validation data as well or better, yet under the
     /// compensator they removed 28 % of the tip error where mixed data removed 60 % (mean over
     /// three robots and three paths, docs/results/data-study/).
-    #[arg(long, default_value = "mixed", value_parser = ["paper", "mixed"], ignore_case = true)]
+    #[arg(long, default_value = "mixed", value_parser = super::choice(&["paper", "mixed"]), ignore_case = true)]
     pub excitation: String,
 }
 
@@ -62,7 +68,13 @@ pub fn run(c: Command) -> Result<()> {
 }
 
 fn collect(mut a: CollectArgs) -> Result<()> {
-    a.excitation = a.excitation.to_ascii_lowercase();
+    super::dataset_out(&a.out, a.force)?;
+    // Found once, here: every later use (and the manifest) names the same files.
+    a.config = crate::home::path(&a.config).context("--config")?;
+    a.robot = crate::home::path(&a.robot).context("--robot")?;
+    if let Some(p) = &a.plant {
+        a.plant = Some(crate::home::path(p).context("--plant")?);
+    }
     if a.samples < 2 {
         bail!("--samples: need at least 2 random configurations, got {}", a.samples);
     }

@@ -37,10 +37,10 @@ pub struct ModelArgs {
     /// Inverse model; default: the config's `model_inv`.
     #[arg(long)]
     model_inv: Option<PathBuf>,
-    /// Controller config (default: configs/controller.toml, or the shipped one if absent).
-    #[arg(long)]
-    config: Option<PathBuf>,
-    /// Robot config for the joint limits (default: configs/robot.toml as shipped).
+    /// Controller config; found as given, under $BOWDEN_HOME, or built in (`bowden shipped`).
+    #[arg(long, default_value = "configs/controller.toml")]
+    config: PathBuf,
+    /// Robot config for the joint limits (default: the shipped configs/robot.toml).
     #[arg(long)]
     robot: Option<PathBuf>,
 }
@@ -57,8 +57,8 @@ pub struct CompensateArgs {
     /// `--cols q_des_1,q_des_2,q_des_3,q_des_4,q_des_5`.
     #[arg(long)]
     cols: Option<String>,
-    /// uncalibrated | paper | newton (default: the config's mode).
-    #[arg(long)]
+    /// Controller mode (default: the config's mode).
+    #[arg(long, value_parser = super::choice(&["uncalibrated", "paper", "newton"]), ignore_case = true)]
     mode: Option<String>,
     /// Output CSV (default: standard output); the columns are listed above.
     #[arg(long)]
@@ -95,7 +95,7 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 300)]
     naive_steps: usize,
     /// dataset-step (a history change every step: the worst case), fine (1 kHz-like), both.
-    #[arg(long, default_value = "both")]
+    #[arg(long, default_value = "both", value_parser = super::choice(&["dataset-step", "fine", "both"]), ignore_case = true)]
     scenario: String,
     /// Joint-space distance per step of the `fine` scenario, deg (0.06 = 60 deg/s at 1 kHz).
     #[arg(long, default_value_t = 0.06)]
@@ -112,6 +112,9 @@ pub struct BenchArgs {
     /// Also write the report as FILE.json, FILE.md and FILE.svg (latency plot).
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Overwrite the --out files if they exist.
+    #[arg(long)]
+    force: bool,
 }
 
 fn absolute(p: &Path) -> anyhow::Result<PathBuf> {
@@ -123,20 +126,20 @@ fn absolute(p: &Path) -> anyhow::Result<PathBuf> {
 }
 
 fn load_setup(m: &ModelArgs) -> anyhow::Result<(ControllerConfig, Robot)> {
-    let default = Path::new("configs/controller.toml");
-    let mut cfg = match &m.config {
-        Some(p) => ControllerConfig::load(p).with_context(|| format!("loading controller config {}", p.display()))?,
-        None if default.exists() => ControllerConfig::load(default).context("loading configs/controller.toml")?,
-        None => ControllerConfig::shipped(),
-    };
+    // The config's relative model paths resolve beside it, wherever it was found.
+    let config = crate::home::resolve(&m.config)?;
+    let mut cfg = ControllerConfig::load(&config.path)
+        .with_context(|| format!("loading controller config {}", config.shown()))?;
     if let Some(p) = &m.model_fwd {
-        cfg.model_fwd = Some(absolute(p)?);
+        cfg.model_fwd = Some(absolute(&crate::home::path(p)?)?);
     }
     if let Some(p) = &m.model_inv {
-        cfg.model_inv = Some(absolute(p)?);
+        cfg.model_inv = Some(absolute(&crate::home::path(p)?)?);
     }
     let robot = match &m.robot {
-        Some(p) => Robot::load(p).with_context(|| format!("loading robot config {}", p.display()))?,
+        Some(p) => {
+            Robot::load(crate::home::path(p)?).with_context(|| format!("loading robot config {}", p.display()))?
+        }
         None => Robot::paper_default(),
     };
     Ok((cfg, robot))
@@ -308,6 +311,10 @@ fn pin_to_cpu(cpu: usize) -> anyhow::Result<()> {
 
 pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
     let BenchCommand::Compensate(a) = c;
+    if let Some(p) = &a.out {
+        let files = ["json", "md", "svg"].map(|e| p.with_extension(e));
+        super::refuse_overwrite(&files, a.force, "--out")?;
+    }
     let (cfg, robot) = load_setup(&a.models)?;
     if a.steps == 0 {
         bail!("--steps must be > 0");

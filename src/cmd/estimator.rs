@@ -67,6 +67,9 @@ pub enum EstimatorCommand {
         /// Also write eval.json, eval.md and eval.svg into this directory.
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Overwrite eval.json, eval.md and eval.svg in --out if they exist.
+        #[arg(long)]
+        force: bool,
         /// The IK hint is the truth plus uniform noise of ± this per joint (the command is off
         /// the physical angle by the hysteresis).
         #[arg(long, default_value_t = 15.0)]
@@ -100,6 +103,7 @@ pub fn run(c: Command) -> Result<()> {
                     seed,
                     json,
                     out,
+                    force,
                     hint_offset_deg,
                     no_hint,
                     check,
@@ -107,6 +111,11 @@ pub fn run(c: Command) -> Result<()> {
                     model,
                 },
         } => {
+            if let Some(dir) = &out {
+                let files = ["eval.json", "eval.md", "eval.svg"].map(|f| dir.join(f));
+                super::refuse_overwrite(&files, force, "--out")?;
+            }
+            let camera = crate::home::path(&camera)?;
             let hint = if no_hint { None } else { Some(hint_offset_deg) };
             eval(frames, seed, json, out.as_deref(), hint, check, &camera, &model)
         }
@@ -114,9 +123,10 @@ pub fn run(c: Command) -> Result<()> {
 }
 
 fn load_model(m: &ModelArgs) -> Result<(Robot, MarkerGeometry, EstimatorConfig)> {
-    let robot = Robot::load(&m.robot)?;
-    let geometry = MarkerGeometry::load(&m.markers)?;
-    let cfg = EstimatorConfig::load(&m.markers)?;
+    let robot = Robot::load(crate::home::path(&m.robot)?)?;
+    let markers = crate::home::path(&m.markers)?;
+    let geometry = MarkerGeometry::load(&markers)?;
+    let cfg = EstimatorConfig::load(&markers)?;
     Ok((robot, geometry, cfg))
 }
 

@@ -3,6 +3,7 @@
 //! `bowden evaluate --session MINUTES`: the same trajectories looped through one pipeline for
 //! MINUTES of simulated time, the error over time (cable slack scenarios, issue #13).
 
+use crate::home::Resolved;
 use anyhow::{bail, Context, Result};
 use bowden_evaluation::report::{summarise, write_report};
 use bowden_evaluation::session::{self, SlackEvents};
@@ -17,19 +18,23 @@ use std::path::PathBuf;
 
 #[derive(Args)]
 pub struct EvaluateArgs {
-    /// Pipeline to run (lockstep; its compensator's mode is set per controller).
+    /// Pipeline to run (lockstep; its compensator's mode is set per controller). Config, robot,
+    /// plant, controller and trajectory files are found as given, under $BOWDEN_HOME, or built
+    /// in (`bowden shipped`).
     #[arg(long, default_value = "configs/evaluate.toml")]
     pub config: PathBuf,
     /// Robot description used for FK of the errors and IK of the trajectories.
     #[arg(long, default_value = "configs/robot.toml")]
     pub robot: PathBuf,
-    /// Trajectory names, files `<trajectories-dir>/<name>.toml`.
+    /// Trajectory names, files `<trajectories-dir>/<name>.toml` (shipped: random, circle, zigzag).
     #[arg(long, value_delimiter = ',', default_value = "random,circle,zigzag")]
     pub trajectories: Vec<String>,
+    /// Directory of the trajectory files (configs/trajectories/large: the larger test paths).
     #[arg(long, default_value = "configs/trajectories")]
     pub trajectories_dir: PathBuf,
-    /// Controllers: uncalibrated, paper (Algorithm 1), newton.
-    #[arg(long, value_delimiter = ',', default_value = "uncalibrated,paper,newton")]
+    /// Controllers (comma-separated): uncalibrated, paper (Algorithm 1), newton.
+    #[arg(long, value_delimiter = ',', default_value = "uncalibrated,paper,newton",
+          value_parser = super::choice(&CONTROLLERS), ignore_case = true)]
     pub controllers: Vec<String>,
     /// Runs of every (trajectory, controller), each with its own seed (camera noise; with
     /// `--units per-repeat` also the plant unit). Default 5; 1 with `--session`.
@@ -38,8 +43,10 @@ pub struct EvaluateArgs {
     /// Which manufactured unit of the plant runs: `configured` (the plant file's
     /// `variation.unit`, the robot the models were trained on, as the paper evaluated) or
     /// `per-repeat` (repeat r runs unit seed + r: other units of the same design, a transfer test).
-    #[arg(long, value_enum, default_value_t = Units::Configured)]
+    #[arg(long, value_enum, default_value_t = Units::Configured, ignore_case = true)]
     pub units: Units,
+    /// Seed of repeat 0 (repeat r uses seed + r): camera noise, and with `--units per-repeat`
+    /// the plant unit.
     #[arg(long, default_value_t = 1000)]
     pub seed: u64,
     /// Ticks each point is held; the last is measured (5 × 100 ms = the paper's 0.5 s pause).
@@ -55,12 +62,19 @@ pub struct EvaluateArgs {
     #[arg(long)]
     pub controller_config: Option<PathBuf>,
     /// Directory for report.md, report.json and the plots (default out/evaluate; with
-    /// `--session`, session.md, session.json and its plots, default out/evaluate-session).
+    /// `--session`, session.md, session.json and its plots, default out/evaluate-session),
+    /// relative to the working directory. An earlier report there is kept unless --force.
     #[arg(long)]
     pub report: Option<PathBuf>,
-    /// Also write the summary JSON here.
+    /// Print the summary as JSON on stdout instead of the tables.
     #[arg(long)]
-    pub json: Option<PathBuf>,
+    pub json: bool,
+    /// Also write the summary JSON to FILE.
+    #[arg(long, value_name = "FILE")]
+    pub json_out: Option<PathBuf>,
+    /// Overwrite an earlier report in --report (and --json-out).
+    #[arg(long)]
+    pub force: bool,
     /// One long tracking session instead: the trajectories played one after another in a loop
     /// through ONE pipeline (the plant is never restarted: its creep and slips carry over) for
     /// MINUTES of simulated time, per controller; reports the error per `--window-s` window.
@@ -69,6 +83,41 @@ pub struct EvaluateArgs {
     /// With `--session`: the length of a window of the error-over-time tables, s.
     #[arg(long, default_value_t = 60.0, value_name = "SECONDS")]
     pub window_s: f64,
+}
+
+/// The arguments with their files found (`crate::home`); the other fields through `Deref`.
+struct Files {
+    args: EvaluateArgs,
+    config: Resolved,
+    robot: Resolved,
+    trajectories_dir: Resolved,
+    plant: Option<Resolved>,
+    controller_config: Option<Resolved>,
+}
+
+impl Files {
+    fn resolve(args: EvaluateArgs) -> Result<Self> {
+        let find = |p: &PathBuf, flag: &str| crate::home::resolve(p).with_context(|| flag.to_string());
+        Ok(Files {
+            config: find(&args.config, "--config")?,
+            robot: find(&args.robot, "--robot")?,
+            trajectories_dir: find(&args.trajectories_dir, "--trajectories-dir")?,
+            plant: args.plant.as_ref().map(|p| find(p, "--plant")).transpose()?,
+            controller_config: args
+                .controller_config
+                .as_ref()
+                .map(|p| find(p, "--controller-config"))
+                .transpose()?,
+            args,
+        })
+    }
+}
+
+impl std::ops::Deref for Files {
+    type Target = EvaluateArgs;
+    fn deref(&self) -> &EvaluateArgs {
+        &self.args
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -120,11 +169,9 @@ fn describe_controller(pipeline: &std::path::Path) -> String {
                 .map(|f| f.to_string_lossy().into_owned())
                 .unwrap_or_else(|| "none".into())
         };
-        // Relative to the working directory when inside it, so reports do not name the machine.
-        let shown = std::env::current_dir()
-            .ok()
-            .and_then(|d| path.strip_prefix(d).ok().map(|p| p.display().to_string()))
-            .unwrap_or_else(|| file.to_string());
+        // Relative to the working directory (or the built-in copy, said so) when inside it, so
+        // reports do not name the machine.
+        let shown = crate::home::describe(&path);
         Some(format!(
             "controller {} (forward {}, inverse {})",
             shown,
@@ -147,24 +194,25 @@ struct Prepared {
     tick_ns: u64,
 }
 
-fn prepare(a: &EvaluateArgs, default_repeats: u32, default_report: &str) -> Result<Prepared> {
-    for c in &a.controllers {
-        if !CONTROLLERS.contains(&c.as_str()) {
-            bail!(
-                "--controllers: unknown controller `{c}` (expected {})",
-                CONTROLLERS.join(", ")
-            );
-        }
-    }
+fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: [&str; 2]) -> Result<Prepared> {
     let repeats = a.repeats.unwrap_or(default_repeats);
     if repeats == 0 || a.settle_ticks == 0 {
         bail!("--repeats and --settle-ticks must be at least 1");
     }
     let report = a.report.clone().unwrap_or_else(|| PathBuf::from(default_report));
-    let robot = Robot::load(&a.robot)?;
+    if report.is_file() {
+        bail!(
+            "--report {}: expected a directory for the report; this is a file",
+            report.display()
+        );
+    }
+    let mut outputs = report_files.map(|f| report.join(f)).to_vec();
+    outputs.extend(a.json_out.clone());
+    super::refuse_overwrite(&outputs, a.force, "--report")?;
+    let robot = Robot::load(&a.robot.path)?;
     let mut paths = Vec::new();
     for name in &a.trajectories {
-        let file = a.trajectories_dir.join(format!("{name}.toml"));
+        let file = a.trajectories_dir.path.join(format!("{name}.toml"));
         let spec = TrajectorySpec::load(&file)?;
         let mut t = spec.to_joint_space(&robot, &file)?;
         if let Some(n) = a.max_points {
@@ -173,7 +221,7 @@ fn prepare(a: &EvaluateArgs, default_repeats: u32, default_report: &str) -> Resu
         paths.push(t);
     }
     let work_dir = report.join("pipelines");
-    let tick_ns = PipelineConfig::load(&a.config, &Overrides::default())?.period_ns();
+    let tick_ns = PipelineConfig::load(&a.config.path, &Overrides::default())?.period_ns();
     let fps = camera_fps_for(a.settle_ticks, tick_ns);
     let mut pipelines = Vec::new();
     for c in &a.controllers {
@@ -186,12 +234,12 @@ fn prepare(a: &EvaluateArgs, default_repeats: u32, default_report: &str) -> Resu
         }
         for (node, file) in [("plant", &a.plant), ("compensator", &a.controller_config)] {
             if let Some(f) = file {
-                let abs = std::fs::canonicalize(f).with_context(|| format!("{}", f.display()))?;
+                let abs = std::fs::canonicalize(&f.path).with_context(|| f.shown())?;
                 set.push((node, "config", toml::Value::String(abs.display().to_string())));
             }
         }
         pipelines.push(pipeline_variant(
-            &a.config,
+            &a.config.path,
             &set,
             &work_dir.join(format!("pipeline-{c}.toml")),
         )?);
@@ -229,12 +277,12 @@ fn progress_bar(total: u64) -> ProgressBar {
 }
 
 /// "plant FILE (unit …)" of the report headers.
-fn describe_plant(a: &EvaluateArgs, repeats: u32) -> Result<(bowden_plant::PlantConfig, String)> {
-    let plant_cfg = bowden_plant::PlantConfig::load_or_shipped(a.plant.as_deref())?;
+fn describe_plant(a: &Files, repeats: u32) -> Result<(bowden_plant::PlantConfig, String)> {
+    let plant_cfg = bowden_plant::PlantConfig::load_or_shipped(a.plant.as_ref().map(|p| p.path.as_path()))?;
     let plant_name = a
         .plant
         .as_ref()
-        .map(|p| p.display().to_string())
+        .map(|p| p.shown())
         .unwrap_or_else(|| "configs/plant.toml".into());
     let units = match (a.units, plant_cfg.variation.unit) {
         (Units::Configured, Some(u)) => format!("unit {u}"),
@@ -245,7 +293,8 @@ fn describe_plant(a: &EvaluateArgs, repeats: u32) -> Result<(bowden_plant::Plant
     Ok((plant_cfg, format!("plant {plant_name} ({units})")))
 }
 
-fn evaluate(a: EvaluateArgs) -> Result<()> {
+fn evaluate(args: EvaluateArgs) -> Result<()> {
+    let a = Files::resolve(args)?;
     if let Some(minutes) = a.session {
         return evaluate_session(&a, minutes);
     }
@@ -257,7 +306,7 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
         repeats,
         report,
         ..
-    } = prepare(&a, 5, "out/evaluate")?;
+    } = prepare(&a, 5, "out/evaluate", ["report.md", "report.json"])?;
     let total: u64 =
         paths.iter().map(|t| t.q_deg.len() as u64).sum::<u64>() * a.controllers.len() as u64 * u64::from(repeats);
     let bar = progress_bar(total);
@@ -289,8 +338,8 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
         a.controllers.len(),
         repeats,
         a.settle_ticks,
-        a.config.display(),
-        a.robot.display(),
+        a.config.shown(),
+        a.robot.shown(),
         plant,
         pipelines
             .first()
@@ -298,10 +347,15 @@ fn evaluate(a: EvaluateArgs) -> Result<()> {
             .unwrap_or_else(|| "no controller".into())
     );
     let files = write_report(&robot, &runs, &summary, &header, &report)?;
-    if let Some(j) = &a.json {
-        std::fs::write(j, serde_json::to_string_pretty(&summary)?).with_context(|| format!("{}", j.display()))?;
+    let json = serde_json::to_string_pretty(&summary)?;
+    if let Some(j) = &a.json_out {
+        std::fs::write(j, &json).with_context(|| format!("{}", j.display()))?;
     }
-    print!("{}", bowden_evaluation::report::markdown(&summary, &header));
+    if a.json {
+        println!("{json}");
+    } else {
+        print!("{}", bowden_evaluation::report::markdown(&summary, &header));
+    }
     print_files(&files);
     Ok(())
 }
@@ -368,7 +422,7 @@ fn slack_events(cfg: &bowden_plant::PlantConfig, robot: &Robot) -> SlackEvents {
 
 /// `bowden evaluate --session MINUTES`: the trajectories looped through one lockstep pipeline
 /// per controller (and repeat) for MINUTES of simulated time; error over time.
-fn evaluate_session(a: &EvaluateArgs, minutes: f64) -> Result<()> {
+fn evaluate_session(a: &Files, minutes: f64) -> Result<()> {
     if !(minutes.is_finite() && minutes > 0.0 && minutes <= 24.0 * 60.0) {
         bail!("--session: MINUTES must be in (0, 1440], got {minutes}");
     }
@@ -383,7 +437,7 @@ fn evaluate_session(a: &EvaluateArgs, minutes: f64) -> Result<()> {
         repeats,
         report,
         tick_ns,
-    } = prepare(a, 1, "out/evaluate-session")?;
+    } = prepare(a, 1, "out/evaluate-session", ["session.md", "session.json"])?;
     let trajectories: Vec<(String, Vec<bowden_kinematics::JointsDeg>)> =
         paths.iter().map(|t| (t.name.clone(), t.q_deg.clone())).collect();
     let connect = |x: &bowden_kinematics::JointsDeg, y: &bowden_kinematics::JointsDeg| {
@@ -420,8 +474,8 @@ fn evaluate_session(a: &EvaluateArgs, minutes: f64) -> Result<()> {
         a.controllers.len(),
         repeats,
         a.settle_ticks,
-        a.config.display(),
-        a.robot.display(),
+        a.config.shown(),
+        a.robot.shown(),
         plant,
         pipelines
             .first()
@@ -429,10 +483,15 @@ fn evaluate_session(a: &EvaluateArgs, minutes: f64) -> Result<()> {
             .unwrap_or_else(|| "no controller".into())
     );
     let files = session::write(&summary, &plan, &runs, &header, &report)?;
-    if let Some(j) = &a.json {
-        std::fs::write(j, serde_json::to_string_pretty(&summary)?).with_context(|| format!("{}", j.display()))?;
+    let json = serde_json::to_string_pretty(&summary)?;
+    if let Some(j) = &a.json_out {
+        std::fs::write(j, &json).with_context(|| format!("{}", j.display()))?;
     }
-    print!("{}", session::markdown(&summary, &header));
+    if a.json {
+        println!("{json}");
+    } else {
+        print!("{}", session::markdown(&summary, &header));
+    }
     print_files(&files);
     Ok(())
 }

@@ -9,10 +9,11 @@ use std::path::PathBuf;
 
 #[derive(Args)]
 pub struct RobotArg {
-    /// Robot description (Table I/II geometry, limits, cable routing).
+    /// Robot description (Table I/II geometry, limits, cable routing); found as given, under
+    /// $BOWDEN_HOME, or built in (`bowden shipped`).
     #[arg(long, default_value = "configs/robot.toml")]
     pub config: PathBuf,
-    /// Machine-readable output.
+    /// Print JSON on stdout instead of the text.
     #[arg(long)]
     pub json: bool,
 }
@@ -131,7 +132,7 @@ pub fn parse_list<const N: usize>(text: &str, what: &str) -> Result<[f64; N]> {
 }
 
 fn load(robot: &RobotArg) -> Result<Robot> {
-    Ok(Robot::load(&robot.config)?)
+    Ok(Robot::load(crate::home::path(&robot.config)?)?)
 }
 
 fn joints(robot: &Robot, text: &str) -> Result<JointsDeg> {

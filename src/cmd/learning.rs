@@ -11,6 +11,11 @@ use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 
+const ARCHS: &[&str] = &["fnn", "lstm", "tcn", "tcn-lstm"];
+const DIRECTIONS: &[&str] = &["forward", "inverse"];
+const TCN_BLOCKS: &[&str] = &["relu-linear", "relu-relu"];
+const BACKENDS: &[&str] = &["fused", "candle"];
+
 #[derive(Subcommand)]
 pub enum Command {
     /// Train one model (paper §IV-C: Adam 1e-3, batch 32, MSE, 80/20 contiguous split, best
@@ -30,10 +35,10 @@ pub enum Command {
 
 #[derive(Args, Debug)]
 pub struct StampSupportArgs {
-    /// Dataset directory the models were trained on.
+    /// Dataset directory the models were trained on (dataset.csv + manifest.json).
     #[arg(long)]
     data: PathBuf,
-    /// Model files to stamp (their direction and L say which windows are theirs).
+    /// Model files to stamp in place (their direction and L say which windows are theirs).
     #[arg(required = true)]
     models: Vec<PathBuf>,
     #[command(flatten)]
@@ -49,7 +54,7 @@ pub struct SplitArgs {
     #[arg(long, default_value_t = 1)]
     val_blocks: usize,
     /// Physical angles from the vision estimate (as the paper) or the simulator's truth.
-    #[arg(long, default_value = "vision")]
+    #[arg(long, default_value = "vision", value_parser = super::choice(&["vision", "truth"]), ignore_case = true)]
     phy_source: String,
 }
 
@@ -68,37 +73,45 @@ impl SplitArgs {
 
 #[derive(Args, Debug)]
 pub struct TrainArgs {
-    /// fnn | lstm | tcn | tcn-lstm
-    #[arg(long)]
+    /// Architecture.
+    #[arg(long, value_parser = super::choice(ARCHS), ignore_case = true)]
     arch: String,
-    /// forward (q_cmd history → q_phy) | inverse (q_phy history → q_cmd)
-    #[arg(long)]
+    /// forward (q_cmd history → q_phy) or inverse (q_phy history → q_cmd).
+    #[arg(long, value_parser = super::choice(DIRECTIONS), ignore_case = true)]
     direction: String,
     /// Input sequence length L.
     #[arg(long, default_value_t = 80)]
     seq_len: usize,
+    /// Training epochs (the best on validation RMSE is kept).
     #[arg(long, default_value_t = 100)]
     epochs: usize,
+    /// Seed of the weights' initialisation and the batch order.
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Dataset directory (dataset.csv + manifest.json).
     #[arg(long)]
     data: PathBuf,
-    /// Output model; NAME.report.json and NAME.loss.svg are written beside it.
+    /// Output model; NAME.report.json and NAME.loss.svg are written beside it. Existing files
+    /// are kept unless --force.
     #[arg(long)]
     out: PathBuf,
-    /// relu-linear (ReLU between the convs only; default) | relu-relu (the paper literally).
-    #[arg(long, default_value = "relu-linear")]
+    /// Overwrite the model, its report and plot if they exist.
+    #[arg(long)]
+    force: bool,
+    /// relu-linear (ReLU between the convs only; default) or relu-relu (the paper literally).
+    #[arg(long, default_value = "relu-linear", value_parser = super::choice(TCN_BLOCKS), ignore_case = true)]
     tcn_block: String,
     /// Stop after N epochs without a better validation RMSE.
     #[arg(long)]
     early_stop: Option<usize>,
+    /// Mini-batch size.
     #[arg(long, default_value_t = 32)]
     batch_size: usize,
+    /// Adam learning rate.
     #[arg(long, default_value_t = 1e-3)]
     lr: f64,
-    /// fused (hand-written kernels) | candle (autograd reference, slow)
-    #[arg(long, default_value = "fused")]
+    /// fused (hand-written kernels) or candle (autograd reference, slow).
+    #[arg(long, default_value = "fused", value_parser = super::choice(BACKENDS), ignore_case = true)]
     backend: String,
     /// Worker threads (results do not depend on it).
     #[arg(long, default_value_t = 2)]
@@ -109,24 +122,31 @@ pub struct TrainArgs {
 
 #[derive(Args, Debug)]
 pub struct SweepArgs {
-    /// Comma-separated architectures.
-    #[arg(long, default_value = "fnn,lstm,tcn,tcn-lstm")]
-    archs: String,
+    /// Architectures (comma-separated).
+    #[arg(long, default_value = "fnn,lstm,tcn,tcn-lstm", value_delimiter = ',',
+          value_parser = super::choice(ARCHS), ignore_case = true)]
+    archs: Vec<String>,
     /// Comma-separated sequence lengths.
     #[arg(long, default_value = "10,50,65,80,100,120")]
     seq_lens: String,
     /// Seeds per configuration (0, 1, ... N−1).
     #[arg(long, default_value_t = 3)]
     seeds: u64,
-    #[arg(long, default_value = "forward,inverse")]
-    directions: String,
+    /// Directions (comma-separated).
+    #[arg(long, default_value = "forward,inverse", value_delimiter = ',',
+          value_parser = super::choice(DIRECTIONS), ignore_case = true)]
+    directions: Vec<String>,
     /// TCN block variants for tcn and tcn-lstm (comma-separated).
-    #[arg(long, default_value = "relu-linear,relu-relu")]
-    tcn_blocks: String,
+    #[arg(long, default_value = "relu-linear,relu-relu", value_delimiter = ',',
+          value_parser = super::choice(TCN_BLOCKS), ignore_case = true)]
+    tcn_blocks: Vec<String>,
+    /// Training epochs of every run.
     #[arg(long, default_value_t = 30)]
     epochs: usize,
+    /// Stop a run after N epochs without a better validation RMSE.
     #[arg(long)]
     early_stop: Option<usize>,
+    /// Dataset directory (dataset.csv + manifest.json).
     #[arg(long)]
     data: PathBuf,
     /// Output directory (runs/ holds one JSON per finished run: rerunning resumes).
@@ -150,11 +170,14 @@ pub struct ImportArgs {
     /// Measured array (N × J .npy).
     #[arg(long, requires = "npy_cmd")]
     npy_phy: Option<PathBuf>,
-    /// Output dataset directory.
+    /// Output dataset directory; an existing dataset there is kept unless --force.
     #[arg(long)]
     out: PathBuf,
-    /// deg | rad (converted to degrees).
-    #[arg(long, default_value = "deg")]
+    /// Overwrite an existing dataset in --out.
+    #[arg(long)]
+    force: bool,
+    /// Angle unit of the data: deg, or rad (converted to degrees).
+    #[arg(long, default_value = "deg", value_parser = super::choice(&["deg", "rad"]), ignore_case = true)]
     unit: String,
     /// 1-based joints to keep, e.g. 1,2,3.
     #[arg(long)]
@@ -185,19 +208,22 @@ pub enum BenchCommand {
 
 #[derive(Args, Debug)]
 pub struct BenchTrainArgs {
-    /// tcn | lstm | fnn | tcn-lstm; default: tcn and lstm.
-    #[arg(long)]
-    arch: Option<String>,
+    /// Architectures (comma-separated); default: tcn and lstm.
+    #[arg(long, value_delimiter = ',', value_parser = super::choice(ARCHS), ignore_case = true)]
+    arch: Vec<String>,
+    /// Epochs timed (the median is reported).
     #[arg(long, default_value_t = 3)]
     epochs: usize,
+    /// Worker threads.
     #[arg(long, default_value_t = 2)]
     threads: usize,
-    /// fused | candle
-    #[arg(long, default_value = "fused")]
+    /// fused (hand-written kernels) or candle (autograd reference).
+    #[arg(long, default_value = "fused", value_parser = super::choice(BACKENDS), ignore_case = true)]
     backend: String,
     /// Windows per epoch (default: the paper's 24,565).
     #[arg(long, default_value_t = bowden_learning::bench::PAPER_TRAIN_WINDOWS)]
     windows: usize,
+    /// Input sequence length L.
     #[arg(long, default_value_t = 80)]
     seq_len: usize,
     /// Print JSON instead of a table.
@@ -205,13 +231,13 @@ pub struct BenchTrainArgs {
     json: bool,
 }
 
-fn parse_list<T: std::str::FromStr<Err = String>>(s: &str, what: &str) -> Result<Vec<T>> {
-    s.split(',')
-        .map(|p| p.trim())
-        .filter(|p| !p.is_empty())
+/// Values clap has checked against their list (lower-case), parsed.
+fn parse_list<T: std::str::FromStr<Err = String>>(values: &[String], what: &str) -> Result<Vec<T>> {
+    values
+        .iter()
         .map(|p| p.parse::<T>().map_err(anyhow::Error::msg))
         .collect::<Result<Vec<T>>>()
-        .with_context(|| format!("--{what} {s:?}"))
+        .with_context(|| format!("--{what} {}", values.join(",")))
 }
 
 fn parse_usizes(s: &str, what: &str) -> Result<Vec<usize>> {
@@ -256,12 +282,14 @@ pub fn run(c: Command) -> Result<()> {
                 .context("--backend")?;
             cfg.threads = a.threads;
             let (split, phy) = a.split.parse()?;
+            let data = super::dataset_dir("--data", &a.data)?;
+            let (json, svg) = bowden_learning::report::sidecar_paths(&a.out);
+            super::refuse_overwrite(&[a.out.clone(), json.clone(), svg.clone()], a.force, "--out")?;
             let pb = epoch_bar();
             pb.set_prefix(format!("{arch} {direction} L={}", a.seq_len));
-            let report = train_to_files(&a.data, &cfg, split, phy, &a.out, Some(&pb))
+            let report = train_to_files(data, &cfg, split, phy, &a.out, Some(&pb))
                 .with_context(|| format!("training on {}", a.data.display()))?;
             pb.finish();
-            let (json, svg) = bowden_learning::report::sidecar_paths(&a.out);
             println!(
                 "{} {} L={} ({} params): best epoch {}/{}: validation RMSE {:.3}° (identity {:.3}°), per joint {:?}",
                 arch,
@@ -293,6 +321,7 @@ pub fn run(c: Command) -> Result<()> {
         }
         Command::Sweep(a) => {
             let (split, phy) = a.split.parse()?;
+            super::dataset_dir("--data", &a.data)?;
             let cfg = SweepConfig {
                 archs: parse_list(&a.archs, "archs")?,
                 seq_lens: parse_usizes(&a.seq_lens, "seq-lens")?,
@@ -320,6 +349,7 @@ pub fn run(c: Command) -> Result<()> {
         }
         Command::StampSupport(a) => {
             let (split, phy) = a.split.parse()?;
+            super::dataset_dir("--data", &a.data)?;
             let (ds, _) =
                 bowden_learning::Dataset::read_dir(&a.data).with_context(|| format!("--data {}", a.data.display()))?;
             for m in &a.models {
@@ -347,6 +377,7 @@ pub fn run(c: Command) -> Result<()> {
         }
         Command::Import(a) => {
             let unit: AngleUnit = a.unit.parse().map_err(anyhow::Error::msg).context("--unit")?;
+            super::dataset_out(&a.out, a.force)?;
             let opts = ImportOptions {
                 unit,
                 joints: a.joints.as_deref().map(|s| parse_usizes(s, "joints")).transpose()?,
@@ -390,9 +421,9 @@ fn split_names(s: &str) -> Vec<String> {
 pub fn bench(c: BenchCommand) -> Result<()> {
     match c {
         BenchCommand::Train(a) => {
-            let archs: Vec<Arch> = match &a.arch {
-                Some(s) => parse_list(s, "arch")?,
-                None => vec![Arch::Tcn, Arch::Lstm],
+            let archs: Vec<Arch> = match a.arch.as_slice() {
+                [] => vec![Arch::Tcn, Arch::Lstm],
+                some => parse_list(some, "arch")?,
             };
             let backend: Backend = a.backend.parse().map_err(anyhow::Error::msg).context("--backend")?;
             let mut results = Vec::new();

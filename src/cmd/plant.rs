@@ -39,7 +39,8 @@ pub struct PlayArgs {
     /// commands themselves (the uncalibrated robot).
     #[arg(long)]
     targets: Option<PathBuf>,
-    /// Plant file; the shipped configs/plant.toml when absent.
+    /// Plant file (e.g. configs/plant-lugre.toml: found as given, under $BOWDEN_HOME, or built
+    /// in); the shipped configs/plant.toml when absent.
     #[arg(long)]
     config: Option<PathBuf>,
     /// Robot file; the shipped configs/robot.toml when absent.
@@ -68,7 +69,8 @@ pub struct PlayArgs {
 
 #[derive(Args)]
 pub struct CharacterizeArgs {
-    /// Plant file; the shipped configs/plant.toml when absent.
+    /// Plant file (e.g. configs/plant-lugre.toml: found as given, under $BOWDEN_HOME, or built
+    /// in); the shipped configs/plant.toml when absent.
     #[arg(long)]
     config: Option<PathBuf>,
     /// Robot file; the shipped configs/robot.toml when absent.
@@ -95,6 +97,9 @@ pub struct CharacterizeArgs {
     /// Hysteresis-loop plot to write (SVG).
     #[arg(long, default_value = "plant_loops.svg")]
     plot: PathBuf,
+    /// Overwrite --plot if it exists.
+    #[arg(long)]
+    force: bool,
 }
 
 pub fn run(c: Command) -> Result<()> {
@@ -106,10 +111,12 @@ pub fn run(c: Command) -> Result<()> {
 
 fn run_characterize(a: CharacterizeArgs) -> Result<()> {
     let robot = match &a.robot {
-        Some(p) => Robot::load(p).context("loading the robot file (--robot)")?,
+        Some(p) => Robot::load(crate::home::path(p)?).context("loading the robot file (--robot)")?,
         None => Robot::paper_default(),
     };
-    let config = PlantConfig::load_or_shipped(a.config.as_deref()).context("loading the plant file (--config)")?;
+    let config = a.config.as_deref().map(crate::home::path).transpose()?;
+    let config = PlantConfig::load_or_shipped(config.as_deref()).context("loading the plant file (--config)")?;
+    super::refuse_overwrite(std::slice::from_ref(&a.plot), a.force, "--plot")?;
     anyhow::ensure!(
         a.samples >= 2,
         "--samples {}: need at least 2 random configurations",
@@ -232,10 +239,11 @@ struct PlayResult {
 
 fn run_play(a: PlayArgs) -> Result<()> {
     let robot = match &a.robot {
-        Some(p) => Robot::load(p).context("loading the robot file (--robot)")?,
+        Some(p) => Robot::load(crate::home::path(p)?).context("loading the robot file (--robot)")?,
         None => Robot::paper_default(),
     };
-    let config = PlantConfig::load_or_shipped(a.config.as_deref()).context("loading the plant file (--config)")?;
+    let config = a.config.as_deref().map(crate::home::path).transpose()?;
+    let config = PlantConfig::load_or_shipped(config.as_deref()).context("loading the plant file (--config)")?;
     let Some(unit) = a.unit.or(config.variation.unit) else {
         bail!("the plant file has no `[variation] unit`; pass --unit N to choose the robot instance");
     };
@@ -274,11 +282,7 @@ fn run_play(a: PlayArgs) -> Result<()> {
         commands.len()
     );
     if let Some(p) = &a.out {
-        anyhow::ensure!(
-            !p.exists() || a.force,
-            "{}: exists; pass --force to overwrite it",
-            p.display()
-        );
+        super::refuse_overwrite(std::slice::from_ref(p), a.force, "--out")?;
     }
 
     let mut plant = Plant::new(&robot, &config, unit);

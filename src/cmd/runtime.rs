@@ -19,7 +19,7 @@ use std::time::Duration;
 #[derive(Args, Debug, Clone, Default)]
 pub struct OverrideArgs {
     /// Scheduling mode: lockstep (simulated clock, reproducible) or realtime.
-    #[arg(long)]
+    #[arg(long, value_parser = super::choice(&["lockstep", "realtime"]), ignore_case = true)]
     mode: Option<String>,
     /// iceoryx2 shared-memory prefix (isolates runs on one machine).
     #[arg(long)]
@@ -57,7 +57,7 @@ pub enum Command {
     Node {
         /// Process name from the config (a stage's name unless stages share a `process`).
         name: String,
-        /// Pipeline config; `@sim` is the embedded default.
+        /// Pipeline config (found as `run` finds it); `@sim` is the embedded default.
         #[arg(long)]
         config: Option<String>,
         #[command(flatten)]
@@ -69,11 +69,13 @@ pub enum Command {
         #[arg(long)]
         quiet: bool,
     },
-    /// Start a pipeline (default: configs/sim.toml, embedded): every stage its own process,
-    /// supervised; Ctrl-C stops it cleanly and prints the latency summary.
+    /// Start a pipeline (default: configs/sim.toml): every stage its own process, supervised;
+    /// Ctrl-C stops it cleanly and prints the latency summary.
     Run {
-        /// Pipeline config file (default: configs/sim.toml if present, else the embedded copy).
-        config: Option<PathBuf>,
+        /// Pipeline config file: found as given, under $BOWDEN_HOME, or built in (`bowden
+        /// shipped`); the files it names are found beside it.
+        #[arg(default_value = "configs/sim.toml")]
+        config: PathBuf,
         #[command(flatten)]
         ov: OverrideArgs,
         /// Stop after this many ticks (lockstep) or control periods (real time).
@@ -88,9 +90,15 @@ pub enum Command {
         /// Children print no exit summaries.
         #[arg(long)]
         quiet: bool,
-        /// Also write the run summary as JSON.
+        /// Print the run summary as JSON on stdout instead of the table.
         #[arg(long)]
-        json: Option<PathBuf>,
+        json: bool,
+        /// Also write the run summary as JSON to FILE.
+        #[arg(long, value_name = "FILE")]
+        json_out: Option<PathBuf>,
+        /// Overwrite --json-out and --record if they exist.
+        #[arg(long)]
+        force: bool,
     },
     /// Feed a recorded log back onto its services, or summarise it.
     Replay {
@@ -99,6 +107,15 @@ pub enum Command {
         /// Only print the summary (Markdown; `--json` for machines).
         #[arg(long)]
         summary: bool,
+        /// Print the summary as JSON on stdout instead of Markdown.
+        #[arg(long)]
+        json: bool,
+        /// Also write the summary as JSON to FILE.
+        #[arg(long, value_name = "FILE")]
+        json_out: Option<PathBuf>,
+        /// Overwrite --json-out if it exists.
+        #[arg(long)]
+        force: bool,
         /// As fast as possible instead of the recorded pace.
         #[arg(long)]
         fast: bool,
@@ -106,25 +123,26 @@ pub enum Command {
         #[arg(long, default_value_t = 1.0)]
         speed: f64,
         /// Only these services (comma-separated full names).
-        #[arg(long, value_delimiter = ',')]
+        #[arg(long, value_delimiter = ',', value_parser = super::choice(&bowden_interfaces::services::ALL))]
         services: Option<Vec<String>>,
+        /// iceoryx2 shared-memory prefix to publish under.
         #[arg(long, default_value = "bowden_")]
         prefix: String,
+        /// Service namespace prepended to every service name.
         #[arg(long, default_value = "")]
         namespace: String,
-        /// Write the summary as JSON to this file.
-        #[arg(long)]
-        json: Option<PathBuf>,
     },
     /// Remove what dead bowden processes left in shared memory under a prefix (the launcher does
     /// this at start by itself; for prefixes no run will reuse).
     Clean {
+        /// iceoryx2 shared-memory prefix to clean.
         #[arg(long, default_value = "bowden_")]
         prefix: String,
     },
     /// Latch the actuator's e-stop (hold the last safe command), or release it; waits until an
     /// actuator confirms the new state in its status.
     Estop {
+        /// Release a latched e-stop instead.
         #[arg(long)]
         release: bool,
         /// Give up (exit code 1) when no actuator confirms within this many milliseconds.
@@ -133,23 +151,24 @@ pub enum Command {
         /// The stage whose status confirms (the pipeline's actuator).
         #[arg(long, default_value = "actuator")]
         stage: String,
+        /// iceoryx2 shared-memory prefix of the running pipeline.
         #[arg(long, default_value = "bowden_")]
         prefix: String,
+        /// Service namespace of the running pipeline.
         #[arg(long, default_value = "")]
         namespace: String,
     },
 }
 
-fn default_config() -> String {
-    if Path::new("configs/sim.toml").exists() {
-        "configs/sim.toml".into()
-    } else {
-        SIM_DEFAULT_NAME.into()
-    }
-}
-
+/// Loads a pipeline: `@sim` (the embedded default), or a file found by `crate::home`'s order.
+/// Children get the path found, so every process reads the same file.
 fn load(arg: &str, ov: &Overrides) -> anyhow::Result<PipelineConfig> {
-    PipelineConfig::load_arg(arg, ov).context("pipeline config")
+    let arg = if arg == SIM_DEFAULT_NAME {
+        arg.to_string()
+    } else {
+        crate::home::path(Path::new(arg))?.display().to_string()
+    };
+    PipelineConfig::load_arg(&arg, ov).context("pipeline config")
 }
 
 pub fn run(c: Command) -> anyhow::Result<()> {
@@ -161,7 +180,7 @@ pub fn run(c: Command) -> anyhow::Result<()> {
             standalone,
             quiet,
         } => {
-            let cfg = load(&config.unwrap_or_else(default_config), &ov.overrides()?)?;
+            let cfg = load(config.as_deref().unwrap_or("configs/sim.toml"), &ov.overrides()?)?;
             run_process(
                 &cfg,
                 &name,
@@ -179,12 +198,19 @@ pub fn run(c: Command) -> anyhow::Result<()> {
             log_dir,
             quiet,
             json,
+            json_out,
+            force,
         } => {
-            let arg = config.map(|p| p.display().to_string()).unwrap_or_else(default_config);
-            let cfg = load(&arg, &ov.overrides()?)?;
+            let outputs: Vec<PathBuf> = json_out.iter().chain(ov.record.iter()).cloned().collect();
+            super::refuse_overwrite(&outputs, force, "file")?;
+            let cfg = load(&config.display().to_string(), &ov.overrides()?)?;
             let report = run_pipeline(&cfg, ticks, seconds, log_dir, quiet)?;
-            print!("{}", report.format_summary());
-            if let Some(j) = json {
+            if json {
+                println!("{}", report_json(&report));
+            } else {
+                print!("{}", report.format_summary());
+            }
+            if let Some(j) = json_out {
                 std::fs::write(&j, report_json(&report)).with_context(|| format!("writing {}", j.display()))?;
             }
             Ok(())
@@ -198,7 +224,10 @@ pub fn run(c: Command) -> anyhow::Result<()> {
             prefix,
             namespace,
             json,
+            json_out,
+            force,
         } => {
+            super::refuse_overwrite(json_out.as_slice(), force, "--json-out")?;
             if !summary {
                 if !(speed.is_finite() && speed > 0.0) {
                     bail!("--speed {speed}: must be a positive number");
@@ -216,9 +245,13 @@ pub fn run(c: Command) -> anyhow::Result<()> {
                 );
             }
             let s = replay::summarize(&log).with_context(|| format!("reading {}", log.display()))?;
-            print!("{}", s.to_markdown());
-            if let Some(j) = json {
-                let text = serde_json::to_string_pretty(&s).context("summary JSON")?;
+            let text = serde_json::to_string_pretty(&s).context("summary JSON")?;
+            if json {
+                println!("{text}");
+            } else {
+                print!("{}", s.to_markdown());
+            }
+            if let Some(j) = json_out {
                 std::fs::write(&j, text).with_context(|| format!("writing {}", j.display()))?;
             }
             Ok(())
@@ -406,6 +439,7 @@ pub enum BenchCommand {
         /// Round trips measured per variant.
         #[arg(long, default_value_t = 20_000)]
         samples: usize,
+        /// Round trips sent first and not measured.
         #[arg(long, default_value_t = 2_000)]
         warmup: usize,
         /// Pong side in a thread of this process instead of a second process.
@@ -419,10 +453,18 @@ pub enum BenchCommand {
         #[arg(long)]
         fifo: Option<u8>,
         /// Only these variants (comma-separated), e.g. raw-sample,ports-sample.
-        #[arg(long, value_delimiter = ',')]
+        #[arg(long, value_delimiter = ',', value_parser = clap::builder::PossibleValuesParser::new(IpcVariant::ALL.map(|v| v.name())),
+              ignore_case = true)]
         variants: Option<Vec<String>>,
+        /// Print the rows as JSON on stdout instead of the table.
         #[arg(long)]
-        json: Option<PathBuf>,
+        json: bool,
+        /// Also write the rows as JSON to FILE.
+        #[arg(long, value_name = "FILE")]
+        json_out: Option<PathBuf>,
+        /// Overwrite --json-out if it exists.
+        #[arg(long)]
+        force: bool,
     },
     /// The pong side of `bench ipc` (started by it).
     #[command(hide = true)]
@@ -450,13 +492,20 @@ pub enum BenchCommand {
         config: Option<String>,
         /// none, other (load on the CPUs the pipeline is not pinned to), all (every CPU), or
         /// both (= none then other).
-        #[arg(long, default_value = "both")]
+        #[arg(long, default_value = "both", value_parser = super::choice(&["none", "other", "all", "both"]), ignore_case = true)]
         load: String,
         /// fifo (as configured), other (SCHED_FIFO off in every process), or both.
-        #[arg(long, default_value = "fifo")]
+        #[arg(long, default_value = "fifo", value_parser = super::choice(&["fifo", "other", "both"]), ignore_case = true)]
         sched: String,
+        /// Print the results as JSON on stdout instead of the table.
         #[arg(long)]
-        json: Option<PathBuf>,
+        json: bool,
+        /// Also write the results as JSON to FILE.
+        #[arg(long, value_name = "FILE")]
+        json_out: Option<PathBuf>,
+        /// Overwrite --json-out if it exists.
+        #[arg(long)]
+        force: bool,
     },
 }
 
@@ -470,17 +519,23 @@ pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
             fifo,
             variants,
             json,
+            json_out,
+            force,
         } => {
+            super::refuse_overwrite(json_out.as_slice(), force, "--json-out")?;
             let variants: Vec<IpcVariant> = match variants {
                 Some(v) => v
                     .iter()
                     .map(|n| {
-                        IpcVariant::parse(n).with_context(|| {
-                            format!(
-                                "--variants `{n}`: known: {}",
-                                IpcVariant::ALL.iter().map(|v| v.name()).collect::<Vec<_>>().join(", ")
-                            )
-                        })
+                        IpcVariant::ALL
+                            .into_iter()
+                            .find(|v| v.name().eq_ignore_ascii_case(n))
+                            .with_context(|| {
+                                format!(
+                                    "--variants `{n}`: known: {}",
+                                    IpcVariant::ALL.iter().map(|v| v.name()).collect::<Vec<_>>().join(", ")
+                                )
+                            })
                     })
                     .collect::<anyhow::Result<_>>()?,
                 None => IpcVariant::ALL.to_vec(),
@@ -500,6 +555,14 @@ pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
             };
             let rows =
                 bench::ipc_bench(&prefix, samples, warmup, rounds, &peer, &variants, fifo).context("ipc bench")?;
+            let rows_json = serde_json::to_string_pretty(&rows).context("JSON")?;
+            if let Some(j) = &json_out {
+                std::fs::write(j, &rows_json).with_context(|| format!("writing {}", j.display()))?;
+            }
+            if json {
+                println!("{rows_json}");
+                return Ok(());
+            }
             let side = if threads {
                 "pong in a second thread"
             } else {
@@ -541,10 +604,6 @@ pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
                     );
                 }
             }
-            if let Some(j) = json {
-                std::fs::write(&j, serde_json::to_string_pretty(&rows).context("JSON")?)
-                    .with_context(|| format!("writing {}", j.display()))?;
-            }
             Ok(())
         }
         BenchCommand::IpcPeer {
@@ -573,7 +632,10 @@ pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
             load,
             sched,
             json,
+            json_out,
+            force,
         } => {
+            super::refuse_overwrite(json_out.as_slice(), force, "--json-out")?;
             if !(seconds.is_finite() && seconds > 0.0) {
                 bail!("--seconds {seconds}: must be positive");
             }
@@ -631,7 +693,7 @@ pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
                 other => bail!("--load `{other}`: expected none, other, all or both"),
             };
             let fifo = bench::probe_fifo(80);
-            println!(
+            let setup = format!(
                 "SCHED_FIFO for this user: {}; pipeline pinned to CPU(s) {:?}; load CPUs for `other`: {:?}",
                 match &fifo {
                     Outcome::Applied => "available".to_string(),
@@ -640,6 +702,11 @@ pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
                 pinned,
                 others
             );
+            if json {
+                eprintln!("{setup}");
+            } else {
+                println!("{setup}");
+            }
             let launch = LaunchOptions::current_exe().context("locating the bowden executable")?;
             let mut results = Vec::new();
             for (layout, cfg) in &cfgs {
@@ -649,6 +716,19 @@ pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
                     let r = bench::cycle_run(cfg, &launch, seconds, l, &label).context("cycle run")?;
                     results.push(r);
                 }
+            }
+            let v: Vec<serde_json::Value> = results
+                .iter()
+                .map(|r| serde_json::json!({"run": r.label, "report": serde_json::from_str::<serde_json::Value>(&report_json(&r.report)).unwrap_or_default()}))
+                .collect();
+            let text = serde_json::to_string_pretty(&serde_json::json!({"sched_fifo": fifo.to_string(), "runs": v}))
+                .context("JSON")?;
+            if let Some(j) = &json_out {
+                std::fs::write(j, &text).with_context(|| format!("writing {}", j.display()))?;
+            }
+            if json {
+                println!("{text}");
+                return Ok(());
             }
             println!(
                 "\nlatency: periodic drivers (trajectory, plant) since their nominal release, including the \
@@ -676,18 +756,6 @@ pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
                 for e in &r.report.events {
                     println!("event ({}): {e}", r.label);
                 }
-            }
-            if let Some(j) = json {
-                let v: Vec<serde_json::Value> = results
-                    .iter()
-                    .map(|r| serde_json::json!({"run": r.label, "report": serde_json::from_str::<serde_json::Value>(&report_json(&r.report)).unwrap_or_default()}))
-                    .collect();
-                std::fs::write(
-                    &j,
-                    serde_json::to_string_pretty(&serde_json::json!({"sched_fifo": fifo.to_string(), "runs": v}))
-                        .context("JSON")?,
-                )
-                .with_context(|| format!("writing {}", j.display()))?;
             }
             Ok(())
         }

@@ -57,8 +57,10 @@ fn export(a: ExportArgs) -> Result<()> {
     if !(step_deg.is_finite() && step_deg >= 1e-3) {
         bail!("--step-deg {step_deg}: need a finite spacing of at least 0.001°");
     }
-    let robot = Robot::load(&a.robot).with_context(|| format!("loading the robot file {}", a.robot.display()))?;
-    let spec = TrajectorySpec::load(&a.file)?;
+    let robot_file = crate::home::path(&a.robot)?;
+    let robot = Robot::load(&robot_file).with_context(|| format!("loading the robot file {}", a.robot.display()))?;
+    let file = crate::home::path(&a.file)?;
+    let spec = TrajectorySpec::load(&file)?;
     let path = spec.to_joint_space_with_step(&robot, &a.file, step_deg)?;
     let mut text = String::from("q1,q2,q3,q4,q5\n");
     for q in &path.q_deg {
@@ -68,9 +70,7 @@ fn export(a: ExportArgs) -> Result<()> {
     }
     match &a.out {
         Some(p) => {
-            if p.exists() && !a.force {
-                bail!("{}: exists; pass --force to overwrite it", p.display());
-            }
+            super::refuse_overwrite(std::slice::from_ref(p), a.force, "--out")?;
             std::fs::write(p, &text).with_context(|| format!("writing {}", p.display()))?;
             eprintln!(
                 "{}: {} targets {:.4}° apart ({}) -> {}",

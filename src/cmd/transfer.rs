@@ -52,7 +52,7 @@ pub struct TransferArgs {
     #[arg(long, default_value_t = 2)]
     pub jobs: usize,
     /// Which units to run: the held-out ones (the results), the tuning ones, or all.
-    #[arg(long, value_enum, default_value_t = UnitSet::Heldout)]
+    #[arg(long, value_enum, ignore_case = true, default_value_t = UnitSet::Heldout)]
     pub units: UnitSet,
     /// Only these families (names from the config, comma-separated).
     #[arg(long, value_delimiter = ',')]
@@ -941,7 +941,7 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
         if let Some(n) = r.max_points {
             args.extend(["--max-points".into(), n.to_string()]);
         }
-        args.extend(["--report".into(), s(&eval), "--json".into(), s(&summary)]);
+        args.extend(["--report".into(), s(&eval), "--json-out".into(), s(&summary)]);
         let eval_inputs = r
             .trajectories
             .iter()
@@ -1878,12 +1878,19 @@ fn transfer(a: TransferArgs) -> Result<()> {
     let load_average = std::fs::read_to_string("/proc/loadavg")
         .ok()
         .and_then(|s| s.split_whitespace().next()?.parse::<f64>().ok());
-    let config_file = absolute(&a.config);
+    // The config by bowden's resolution order (docs/architecture.md §1): the shipped one is found
+    // outside a checkout too, and then the built-in copy is the project the steps run in.
+    let config_file = absolute(&crate::home::path(&a.config)?);
     let text = std::fs::read_to_string(&config_file).with_context(|| format!("reading {}", a.config.display()))?;
     let cfg: TransferConfig = toml::from_str(&text).map_err(|e| anyhow!("{}: {e}", a.config.display()))?;
     cfg.validate().map_err(|e| anyhow!("{}: {e}", a.config.display()))?;
     let cfg_dir = config_file.parent().map(Path::to_path_buf).unwrap_or_default();
-    let root = find_root(&cfg_dir);
+    let root = find_root(&cfg_dir).or_else(|| {
+        crate::home::builtin_root()
+            .ok()
+            .filter(|b| cfg_dir.starts_with(b))
+            .map(Path::to_path_buf)
+    });
     // The directory the user's commands run in (their default `configs/...` paths).
     let project = root
         .clone()

@@ -26,7 +26,8 @@ pub struct TuneArgs {
     /// a 1 kHz controller must use).
     #[arg(long, value_delimiter = ',')]
     pub judge: Vec<PathBuf>,
-    /// Controller config whose other settings (limits, budget, load check, …) are kept.
+    /// Controller config whose other settings (limits, budget, load check, …) are kept. Configs
+    /// and models are found as given, under $BOWDEN_HOME, or built in (`bowden shipped`).
     #[arg(long, default_value = "configs/controller.toml")]
     pub base: PathBuf,
     /// Robot description (joint limits the compensator clamps to).
@@ -41,8 +42,9 @@ pub struct TuneArgs {
     /// Validation steps replayed per candidate.
     #[arg(long, default_value_t = 1000)]
     pub max_steps: usize,
-    /// Modes to consider (comma-separated): paper, newton.
-    #[arg(long, value_delimiter = ',', default_value = "paper,newton")]
+    /// Modes to consider (comma-separated).
+    #[arg(long, value_delimiter = ',', default_value = "paper,newton",
+          value_parser = super::choice(&["paper", "newton"]), ignore_case = true)]
     pub modes: Vec<String>,
     /// Newton prior weights μ to try (σ_f/σ_i of each pair is always added).
     #[arg(long, value_delimiter = ',', default_value = "0,0.5,1,2")]
@@ -84,9 +86,20 @@ fn shown_path(model: &Path, out_dir: &Path) -> Result<String> {
     Ok(abs.display().to_string())
 }
 
-fn run_tune(a: TuneArgs) -> Result<()> {
-    if a.out.exists() && !a.force {
-        bail!("{} exists: pass --force to overwrite it", a.out.display());
+fn run_tune(mut a: TuneArgs) -> Result<()> {
+    super::refuse_overwrite(&[a.out.clone(), a.out.with_extension("tune.json")], a.force, "--out")?;
+    super::dataset_dir("--data", &a.data)?;
+    let home = |p: &PathBuf, flag: &str| crate::home::path(p).with_context(|| flag.to_string());
+    a.base = home(&a.base, "--base")?;
+    a.robot = home(&a.robot, "--robot")?;
+    for (models, flag) in [
+        (&mut a.forward, "--forward"),
+        (&mut a.inverse, "--inverse"),
+        (&mut a.judge, "--judge"),
+    ] {
+        for m in models.iter_mut() {
+            *m = home(m, flag)?;
+        }
     }
     let mut modes = Vec::new();
     for m in &a.modes {
