@@ -116,7 +116,11 @@ fn run_characterize(a: CharacterizeArgs) -> Result<()> {
     };
     let config = a.config.as_deref().map(crate::home::path).transpose()?;
     let config = PlantConfig::load_or_shipped(config.as_deref()).context("loading the plant file (--config)")?;
-    super::refuse_overwrite(std::slice::from_ref(&a.plot), a.force, "--plot")?;
+    super::refuse_overwrite(
+        &[a.plot.clone(), bowden_plant::characterize::timeseries_path(&a.plot)],
+        a.force,
+        "--plot",
+    )?;
     anyhow::ensure!(
         a.samples >= 2,
         "--samples {}: need at least 2 random configurations",

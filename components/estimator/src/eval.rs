@@ -430,9 +430,23 @@ impl EvalReport {
             .map_err(|e| e.to_string())?;
         chart
             .configure_mesh()
-            .x_desc("marker r0 r1 b0 r2 b1 y0 g0")
+            .disable_x_mesh()
+            .x_labels(0)
+            .x_desc("marker")
+            .y_desc("RMS error (mm)")
             .draw()
             .map_err(|e| e.to_string())?;
+        // Each bar named by its marker (`bowden_interfaces::marker::NAMES`, configs/markers.toml).
+        {
+            use plotters::style::text_anchor::{HPos, Pos, VPos};
+            let style = TextStyle::from(("sans-serif", 15).into_font()).pos(Pos::new(HPos::Center, VPos::Top));
+            for (m, name) in marker::NAMES.iter().enumerate() {
+                chart
+                    .plotting_area()
+                    .draw(&(EmptyElement::at((m as f64, 0.0)) + Text::new(name.to_string(), (0, 6), style.clone())))
+                    .map_err(|e| e.to_string())?;
+            }
+        }
         chart
             .draw_series(
                 (0..N_MARKERS)

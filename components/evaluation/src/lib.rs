@@ -4,6 +4,7 @@
 //! Table VI (joint space), measured both by the vision estimate (as the paper did) and by the
 //! simulator's truth, with plots like Fig. 12/13.
 
+pub mod figures;
 pub mod metrics;
 pub mod report;
 pub mod session;

@@ -262,16 +262,61 @@ pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), LearnError
     })
 }
 
+/// How a legend entry is drawn.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum LegendMark {
+    Line(RGBColor, u32),
+    Dot(RGBColor),
+}
+
+/// Height of a legend strip, px.
+pub(crate) const LEGEND_STRIP_PX: u32 = 30;
+
+/// A legend laid out left to right on its own strip above the panels, so it never covers data.
+pub(crate) fn legend_strip<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    items: &[(String, LegendMark)],
+) -> Result<(), String> {
+    use plotters::style::text_anchor::{HPos, Pos, VPos};
+    const FONT_PX: u32 = 14;
+    let style = TextStyle::from(("sans-serif", FONT_PX).into_font()).pos(Pos::new(HPos::Left, VPos::Center));
+    let y = area.dim_in_pixel().1 as i32 / 2;
+    let mut x = 60i32;
+    for (label, mark) in items {
+        match *mark {
+            LegendMark::Line(c, w) => area.draw(&PathElement::new(vec![(x, y), (x + 24, y)], c.stroke_width(w))),
+            LegendMark::Dot(c) => area.draw(&Circle::new((x + 12, y), 5, c.filled())),
+        }
+        .map_err(|e| e.to_string())?;
+        area.draw(&Text::new(label.clone(), (x + 32, y), style.clone()))
+            .map_err(|e| e.to_string())?;
+        x += 32 + (label.chars().count() as f64 * 0.6 * FONT_PX as f64).ceil() as i32 + 24;
+    }
+    Ok(())
+}
+
 /// Two panels: training and validation loss (normalised MSE, log scale) and validation
-/// RMSE in degrees with the identity baseline; the best epoch marked.
+/// RMSE in degrees with the identity baseline; the best epoch marked. The legend is a strip
+/// above both panels.
 pub fn plot_loss(path: &Path, r: &TrainReport) -> Result<(), LearnError> {
     let err = |e: String| LearnError::Plot {
         path: path.to_path_buf(),
         what: e,
     };
     let n = r.epochs.len().max(2);
-    let root = SVGBackend::new(path, (1000, 420)).into_drawing_area();
+    let root = SVGBackend::new(path, (1000, 420 + LEGEND_STRIP_PX)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
+    let (legend, root) = root.split_vertically(LEGEND_STRIP_PX);
+    legend_strip(
+        &legend,
+        &[
+            ("train loss".into(), LegendMark::Line(BLUE, 2)),
+            ("validation loss / RMSE".into(), LegendMark::Line(RED, 2)),
+            ("identity (raw hysteresis)".into(), LegendMark::Line(BLACK, 1)),
+            ("best epoch".into(), LegendMark::Dot(GREEN)),
+        ],
+    )
+    .map_err(err)?;
     let (left, right) = root.split_horizontally(500);
     let losses: Vec<f64> = r
         .epochs
@@ -296,25 +341,17 @@ pub fn plot_loss(path: &Path, r: &TrainReport) -> Result<(), LearnError> {
         .y_label_formatter(&|v| format!("{v:.3}"))
         .draw()
         .map_err(|e| err(e.to_string()))?;
-    for (name, color, pick) in [
-        ("train", BLUE, (|e: &EpochStats| e.train_loss) as fn(&EpochStats) -> f64),
-        ("validation", RED, |e: &EpochStats| e.val_loss),
+    for (color, pick) in [
+        (BLUE, (|e: &EpochStats| e.train_loss) as fn(&EpochStats) -> f64),
+        (RED, |e: &EpochStats| e.val_loss),
     ] {
         chart
             .draw_series(LineSeries::new(
                 r.epochs.iter().map(|e| (e.epoch, pick(e))),
                 color.stroke_width(2),
             ))
-            .map_err(|e| err(e.to_string()))?
-            .label(name)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+            .map_err(|e| err(e.to_string()))?;
     }
-    chart
-        .configure_series_labels()
-        .border_style(BLACK)
-        .background_style(WHITE.mix(0.8))
-        .draw()
-        .map_err(|e| err(e.to_string()))?;
 
     let rmse_hi = r
         .epochs
@@ -343,29 +380,19 @@ pub fn plot_loss(path: &Path, r: &TrainReport) -> Result<(), LearnError> {
             r.epochs.iter().map(|e| (e.epoch, e.val_rmse_deg)),
             RED.stroke_width(2),
         ))
-        .map_err(|e| err(e.to_string()))?
-        .label("model")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(2)));
+        .map_err(|e| err(e.to_string()))?;
     chart
         .draw_series(LineSeries::new(
             [(1, r.identity_val_rmse_deg), (n, r.identity_val_rmse_deg)],
             BLACK.stroke_width(1),
         ))
-        .map_err(|e| err(e.to_string()))?
-        .label("identity (raw hysteresis)")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(1)));
+        .map_err(|e| err(e.to_string()))?;
     chart
         .draw_series(std::iter::once(Circle::new(
             (r.best_epoch, r.best_val_rmse_deg),
             5,
             GREEN.filled(),
         )))
-        .map_err(|e| err(e.to_string()))?;
-    chart
-        .configure_series_labels()
-        .border_style(BLACK)
-        .background_style(WHITE.mix(0.8))
-        .draw()
         .map_err(|e| err(e.to_string()))?;
     root.present().map_err(|e| err(e.to_string()))?;
     Ok(())

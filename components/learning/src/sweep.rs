@@ -420,16 +420,19 @@ fn markdown_table(cfg: &SweepConfig, data: &str, stats: &[GroupStats]) -> String
     s
 }
 
-/// One panel per direction: mean RMSE against L per model, with ±SD bars.
+/// One panel per direction: mean RMSE against L per model, with ±SD bars; one colour per model
+/// in every panel, the legend a strip above the panels.
 pub fn plot_sweep(path: &Path, summary: &SweepSummary) -> Result<(), LearnError> {
+    use crate::report::{legend_strip, LegendMark, LEGEND_STRIP_PX};
     let err = |e: String| LearnError::Plot {
         path: PathBuf::from(path),
         what: e,
     };
     let dirs = &summary.config.directions;
     let width = 560 * dirs.len().max(1) as u32;
-    let root = SVGBackend::new(path, (width, 440)).into_drawing_area();
+    let root = SVGBackend::new(path, (width, 440 + LEGEND_STRIP_PX)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
+    let (legend, root) = root.split_vertically(LEGEND_STRIP_PX);
     let panels = root.split_evenly((1, dirs.len().max(1)));
     let lens = &summary.config.seq_lens;
     let (lmin, lmax) = (
@@ -446,6 +449,20 @@ pub fn plot_sweep(path: &Path, summary: &SweepSummary) -> Result<(), LearnError>
         RGBColor(230, 140, 0),
         RGBColor(120, 60, 20),
     ];
+    // Models in order of appearance over every direction: the same colour in every panel.
+    let mut models: Vec<String> = Vec::new();
+    for g in &summary.groups {
+        if !models.contains(&g.model) {
+            models.push(g.model.clone());
+        }
+    }
+    let colour = |m: &str| palette[models.iter().position(|x| x == m).unwrap_or(0) % palette.len()];
+    let mut items: Vec<(String, LegendMark)> = models
+        .iter()
+        .map(|m| (m.clone(), LegendMark::Line(colour(m), 2)))
+        .collect();
+    items.push(("identity (raw hysteresis)".into(), LegendMark::Line(BLACK, 1)));
+    legend_strip(&legend, &items).map_err(err)?;
     for (panel, d) in panels.iter().zip(dirs) {
         let gs: Vec<&GroupStats> = summary.groups.iter().filter(|g| g.direction == *d).collect();
         let ymax = gs
@@ -466,21 +483,19 @@ pub fn plot_sweep(path: &Path, summary: &SweepSummary) -> Result<(), LearnError>
             .y_desc("deg")
             .draw()
             .map_err(|e| err(e.to_string()))?;
-        let mut models: Vec<String> = gs.iter().map(|g| g.model.clone()).collect();
-        let mut seen = std::collections::BTreeSet::new();
-        models.retain(|m| seen.insert(m.clone()));
-        for (i, m) in models.iter().enumerate() {
-            let color = palette[i % palette.len()];
+        for m in &models {
+            let color = colour(m);
             let mut pts: Vec<&GroupStats> = gs.iter().copied().filter(|g| &g.model == m).collect();
+            if pts.is_empty() {
+                continue;
+            }
             pts.sort_by_key(|g| g.seq_len);
             chart
                 .draw_series(LineSeries::new(
                     pts.iter().map(|g| (g.seq_len as f64, g.mean_rmse_deg)),
                     color.stroke_width(2),
                 ))
-                .map_err(|e| err(e.to_string()))?
-                .label(m.clone())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+                .map_err(|e| err(e.to_string()))?;
             chart
                 .draw_series(pts.iter().map(|g| {
                     let x = g.seq_len as f64;
@@ -505,14 +520,6 @@ pub fn plot_sweep(path: &Path, summary: &SweepSummary) -> Result<(), LearnError>
         ident.dedup_by(|a, b| a.0 == b.0);
         chart
             .draw_series(LineSeries::new(ident, BLACK.stroke_width(1)))
-            .map_err(|e| err(e.to_string()))?
-            .label("identity")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(1)));
-        chart
-            .configure_series_labels()
-            .border_style(BLACK)
-            .background_style(WHITE.mix(0.8))
-            .draw()
             .map_err(|e| err(e.to_string()))?;
     }
     root.present().map_err(|e| err(e.to_string()))?;

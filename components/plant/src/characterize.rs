@@ -104,6 +104,22 @@ pub struct Characterization {
     pub q_phy_deg: Vec<JointsDeg>,
 }
 
+/// Commands shown by Fig. 9a (the paper plotted 550 of its 30,707 pairs).
+pub const FIG_9A_SAMPLES: usize = 550;
+
+/// Bin size of the Fig. 9b density panels, degrees.
+const DENSITY_BIN_DEG: f64 = 2.0;
+
+/// Where [`Characterization::write_loop_plot`] writes Fig. 9a beside the loop plot `plot`:
+/// `<stem>_timeseries.svg` in the same directory.
+pub fn timeseries_path(plot: &Path) -> std::path::PathBuf {
+    let stem = plot
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "plant_loops".into());
+    plot.with_file_name(format!("{stem}_timeseries.svg"))
+}
+
 /// A plot that could not be written.
 #[derive(Debug, thiserror::Error)]
 #[error("{path}: cannot write the plot: {message}")]
@@ -256,8 +272,90 @@ impl Characterization {
     }
 
     /// Fig. 9b style hysteresis loops, SVG: q_cmd against q_phy for q1 and q3 over the whole run
-    /// (top) and over the first 400 commands with every sample marked (bottom).
+    /// as a density (top: thousands of overlapping loops would be a solid blob as lines) and
+    /// over the first 400 commands with every sample marked (bottom). Also writes Fig. 9a beside
+    /// it, as [`timeseries_path`]`(path)` (see [`Self::write_timeseries_plot`]).
     pub fn write_loop_plot(&self, path: &Path) -> Result<(), PlotError> {
+        self.write_density_loops(path)?;
+        self.write_timeseries_plot(&timeseries_path(path), FIG_9A_SAMPLES)
+    }
+
+    /// Fig. 9a style, SVG: command and physical angle of every joint (one panel each) over the
+    /// first `n` commands of the run (the paper plotted 550 of its 30,707 pairs).
+    pub fn write_timeseries_plot(&self, path: &Path, n: usize) -> Result<(), PlotError> {
+        use plotters::prelude::*;
+        use plotters::style::text_anchor::{HPos, Pos, VPos};
+        let err = |e: &dyn std::fmt::Display| PlotError {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        };
+        let n = n.min(self.q_cmd_deg.len());
+        let (w, panel_h, legend_h) = (1400u32, 230u32, 34u32);
+        let root = SVGBackend::new(path, (w, 50 + legend_h + panel_h * N_JOINTS as u32)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| err(&e))?;
+        let root = root
+            .titled(
+                &format!(
+                    "Command and physical joint angles, first {n} of {} commands, plant `{}` (Fig. 9a)",
+                    self.q_cmd_deg.len(),
+                    self.plant
+                ),
+                ("sans-serif", 22),
+            )
+            .map_err(|e| err(&e))?;
+        let (legend, rest) = root.split_vertically(legend_h);
+        // The legend on its own strip, off the data.
+        let style = TextStyle::from(("sans-serif", 15).into_font()).pos(Pos::new(HPos::Left, VPos::Center));
+        let y = legend_h as i32 / 2;
+        for (x, label, color, width) in [
+            (20, "q_cmd (command)", BLACK, 1),
+            (240, "q_phy (physical, settled)", RGBColor(200, 40, 40), 2),
+        ] {
+            legend
+                .draw(&PathElement::new(vec![(x, y), (x + 26, y)], color.stroke_width(width)))
+                .map_err(|e| err(&e))?;
+            legend
+                .draw(&Text::new(label, (x + 34, y), style.clone()))
+                .map_err(|e| err(&e))?;
+        }
+        for (j, panel) in rest.split_evenly((N_JOINTS, 1)).iter().enumerate() {
+            let (lo, hi) = self.q_cmd_deg[..n]
+                .iter()
+                .chain(&self.q_phy_deg[..n])
+                .map(|q| q[j])
+                .fold((-5.0f64, 5.0f64), |(lo, hi), v| (lo.min(v), hi.max(v)));
+            let pad = 0.06 * (hi - lo);
+            let mut chart = ChartBuilder::on(panel)
+                .margin(8)
+                .x_label_area_size(if j + 1 == N_JOINTS { 36 } else { 18 })
+                .y_label_area_size(56)
+                .build_cartesian_2d(0.0..n.max(2) as f64, (lo - pad)..(hi + pad))
+                .map_err(|e| err(&e))?;
+            chart
+                .configure_mesh()
+                .light_line_style(WHITE.mix(0.0))
+                .x_desc(if j + 1 == N_JOINTS { "command index" } else { "" })
+                .y_desc(format!("{} [deg]", JOINT_NAMES[j]))
+                .draw()
+                .map_err(|e| err(&e))?;
+            chart
+                .draw_series(LineSeries::new(
+                    (0..n).map(|k| (k as f64, self.q_cmd_deg[k][j])),
+                    BLACK.stroke_width(1),
+                ))
+                .map_err(|e| err(&e))?;
+            chart
+                .draw_series(LineSeries::new(
+                    (0..n).map(|k| (k as f64, self.q_phy_deg[k][j])),
+                    RGBColor(200, 40, 40).stroke_width(2),
+                ))
+                .map_err(|e| err(&e))?;
+        }
+        root.present().map_err(|e| err(&e))?;
+        Ok(())
+    }
+
+    fn write_density_loops(&self, path: &Path) -> Result<(), PlotError> {
         use plotters::prelude::*;
         let err = |e: &dyn std::fmt::Display| PlotError {
             path: path.to_path_buf(),
@@ -268,7 +366,7 @@ impl Characterization {
         let root = root
             .titled(
                 &format!(
-                    "Hysteresis loops, plant `{}`: q_cmd vs q_phy (eq. 16 commands, settled {} s)",
+                    "Hysteresis loops, plant `{}`: q_cmd vs q_phy (eq. 16 commands, settled {} s; Fig. 9b)",
                     self.plant, self.options.pause_s
                 ),
                 ("sans-serif", 22),
@@ -295,7 +393,10 @@ impl Characterization {
             let caption = if marks {
                 format!("{}: first {} commands", JOINT_NAMES[j], n)
             } else {
-                format!("{}: all {} commands", JOINT_NAMES[j], n)
+                format!(
+                    "{}: all {} commands, density ({}° bins, darker = more)",
+                    JOINT_NAMES[j], n, DENSITY_BIN_DEG
+                )
             };
             let mut chart = ChartBuilder::on(panel)
                 .caption(caption, ("sans-serif", 18))
@@ -315,12 +416,33 @@ impl Characterization {
                 .map_err(|e| err(&e))?;
             let pts = (0..n).map(|k| (self.q_cmd_deg[k][j], self.q_phy_deg[k][j]));
             let color = if j == 0 { BLUE } else { RED };
-            chart
-                .draw_series(LineSeries::new(pts.clone(), color.mix(if marks { 0.6 } else { 0.25 })))
-                .map_err(|e| err(&e))?;
             if marks {
                 chart
+                    .draw_series(LineSeries::new(pts.clone(), color.mix(0.6)))
+                    .map_err(|e| err(&e))?;
+                chart
                     .draw_series(pts.map(|p| Circle::new(p, 2, color.filled())))
+                    .map_err(|e| err(&e))?;
+            } else {
+                // Every sample counted in a DENSITY_BIN_DEG square; shade ∝ log(1 + count).
+                let mut bins: std::collections::BTreeMap<(i64, i64), u32> = Default::default();
+                for (c, p) in pts {
+                    let key = (
+                        (c / DENSITY_BIN_DEG).floor() as i64,
+                        (p / DENSITY_BIN_DEG).floor() as i64,
+                    );
+                    *bins.entry(key).or_default() += 1;
+                }
+                let top = f64::from(bins.values().copied().max().unwrap_or(1)).ln_1p();
+                chart
+                    .draw_series(bins.iter().map(|(&(bx, by), &count)| {
+                        let (x0, y0) = (bx as f64 * DENSITY_BIN_DEG, by as f64 * DENSITY_BIN_DEG);
+                        let shade = 0.12 + 0.88 * f64::from(count).ln_1p() / top;
+                        Rectangle::new(
+                            [(x0, y0), (x0 + DENSITY_BIN_DEG, y0 + DENSITY_BIN_DEG)],
+                            color.mix(shade).filled(),
+                        )
+                    }))
                     .map_err(|e| err(&e))?;
             }
         }
