@@ -134,7 +134,15 @@ fn the_main_commands_run_from_an_empty_directory() {
         &cwd,
         &cache,
         &[
-            "bench", "transfer", "--quick", "--units", "Tuning", "--families", "robot2-capstan", "--out", "tr",
+            "bench",
+            "transfer",
+            "--quick",
+            "--units",
+            "Tuning",
+            "--families",
+            "robot2-capstan",
+            "--out",
+            "tr",
         ],
     );
     ok(&["bench", "transfer"], &transfer);
