@@ -7,7 +7,9 @@
 //!    system allocations, and exactly one pool block per published sample;
 //! 2. in real processes: every node of the real-time control chain and of the lockstep sim
 //!    pipeline reports zero system allocations per cycle after its warm-up (the executor audits
-//!    its own loop with the same counters).
+//!    its own loop with the same counters);
+//! 3. the same with the compensator's vision feedback on (it reads the estimator's
+//!    `JointEstimate` stream every cycle and updates its correction from it).
 
 mod runtime_support;
 
@@ -196,5 +198,52 @@ fn node_processes_audit_zero_system_allocations() {
         assert_eq!(*cycles, 300, "{node}");
         assert_eq!(*sys, 0, "{node} allocated in its lockstep cycle");
     }
+    assert_clean(&q);
+}
+
+#[test]
+fn feedback_node_audits_zero_system_allocations() {
+    let (q, _guard_q) = guarded_prefix("audf");
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let controller = root.join("configs/controller-feedback-realtime.toml");
+    let sim = std::fs::read_to_string(sim_toml()).unwrap();
+    let with_feedback = sim.replacen(
+        "mode = \"uncalibrated\"",
+        &format!("config = \"{}\"\nmode = \"newton\"", controller.display()),
+        1,
+    );
+    assert_ne!(with_feedback, sim, "configs/sim.toml changed: update this test");
+    let dir = tempfile::tempdir().unwrap();
+    let file = write_config(dir.path(), "sim-feedback.toml", &with_feedback);
+    let out = run_ok(&[
+        "run",
+        file.to_str().unwrap(),
+        "--mode",
+        "lockstep",
+        "--ticks",
+        "1500",
+        "--prefix",
+        &q,
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let a = audits(&stderr);
+    let (_, sys, cycles) = a
+        .iter()
+        .find(|(n, ..)| n == "compensator")
+        .unwrap_or_else(|| panic!("no audit of the compensator: {a:?}"));
+    assert_eq!(*cycles, 1400);
+    assert_eq!(*sys, 0, "the compensator allocated in its feedback cycle");
+    assert!(a.iter().all(|(_, sys, _)| *sys == 0), "{a:?}");
+    // The feedback ran: estimates came in and corrected the command.
+    let line = stderr
+        .lines()
+        .find(|l| l.trim_start().starts_with("feedback: apply target"))
+        .unwrap_or_else(|| panic!("no feedback summary:\n{stderr}"));
+    let updates: u64 = line
+        .split(", ")
+        .find_map(|f| f.strip_suffix(" updates"))
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{line}"));
+    assert!(updates > 10, "{line}");
     assert_clean(&q);
 }

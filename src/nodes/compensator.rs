@@ -1,7 +1,16 @@
 //! Compensator node: `JointTarget` → `bowden_compensator::Compensator::step` → `JointCommand`.
+//!
+//! With `[feedback] enabled = true` in the controller config (and a calibrated mode, or
+//! `in_uncalibrated`), the node also reads the estimator's `JointEstimate` stream as a passive
+//! input (neither waited for nor woken by, like the estimator's IK hint): every estimate that
+//! arrived up to this cycle is checked by `bowden_compensator::Feedback`, which keeps the
+//! desired angles of recent ticks to compare each frame with what was wanted when it was taken,
+//! and the resulting correction shapes the target or is added to the command
+//! (docs/architecture.md, "Vision feedback"). In lockstep the estimate of tick k is read at
+//! tick k + 1 (the estimator runs after the compensator within a tick), deterministically.
 
-use bowden_compensator::{Compensator, ControllerConfig, Mode, StepOutput};
-use bowden_interfaces::{services, JointCommand, JointTarget, MAX_JOINTS};
+use bowden_compensator::{ApplyTo, Compensator, ControllerConfig, Feedback, Mode, StepOutput};
+use bowden_interfaces::{services, JointCommand, JointEstimate, JointTarget, MAX_JOINTS};
 use bowden_runtime::ports::{Input, Output};
 use bowden_runtime::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
 use serde::Deserialize;
@@ -18,12 +27,22 @@ struct Params {
     mode: Option<String>,
 }
 
+/// The vision-feedback path of the node.
+struct FeedbackPath {
+    fb: Feedback,
+    estimates: Input<JointEstimate>,
+    apply: ApplyTo,
+}
+
 struct CompensatorStage {
     comp: Compensator,
     input: Input<JointTarget>,
     out: Output<JointCommand>,
     step_out: StepOutput,
     bad_size: u64,
+    feedback: Option<FeedbackPath>,
+    /// `[feedback]` is enabled but not applied in this mode (uncalibrated).
+    feedback_idle: bool,
 }
 
 pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
@@ -52,13 +71,80 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         // A time budget would make results depend on the machine's speed.
         comp.set_budget_ns(0);
     }
+    let fb_cfg = &cfg.feedback;
+    let applied = fb_cfg.enabled && (cfg.mode != Mode::Uncalibrated || fb_cfg.in_uncalibrated);
+    let feedback = if applied {
+        Some(FeedbackPath {
+            fb: Feedback::new(fb_cfg, comp.joints(), env.pipeline.period_ns()),
+            estimates: env.ports.input(services::JOINT_ESTIMATE, 8)?,
+            apply: fb_cfg.apply,
+        })
+    } else {
+        None
+    };
     Ok(Box::new(CompensatorStage {
         comp,
         input: env.ports.input(services::JOINT_TARGET, 4)?,
         out: env.ports.output(services::JOINT_COMMAND)?,
         step_out: StepOutput::default(),
         bad_size: 0,
+        feedback,
+        feedback_idle: fb_cfg.enabled && !applied,
     }))
+}
+
+impl CompensatorStage {
+    /// One step with the vision feedback: reads the estimates that arrived, updates the
+    /// correction and applies it. `Err` = a rejected target (counted by the compensator).
+    fn step_with_feedback(&mut self, t: &JointTarget, n: usize, cx: &StepCx) -> Result<(), ()> {
+        let Some(fp) = self.feedback.as_mut() else {
+            return Err(());
+        };
+        let q = &t.q_desired_deg[..n];
+        let now = cx.clock_ns();
+        let usable = n == self.comp.joints() && q.iter().all(|v| v.is_finite());
+        if usable {
+            fp.fb.begin(t.header.tick, q, now);
+        }
+        // Every estimate up to this tick, in arrival order (lockstep: exactly those of the
+        // ticks before; real time: whatever arrived since the last cycle).
+        loop {
+            let e = if cx.lockstep {
+                fp.estimates.next_upto(cx.tick)
+            } else {
+                fp.estimates.recv()
+            };
+            let Some(e) = e else { break };
+            fp.fb.observe(&e, now);
+        }
+        if !usable {
+            // Rejected and counted by the compensator, which holds its last command.
+            return self.comp.step(q, &mut self.step_out).map_err(|_| ());
+        }
+        let mut u = [0.0f64; MAX_JOINTS];
+        u[..n].copy_from_slice(fp.fb.update(now));
+        let r = if u[..n].iter().all(|&v| v == 0.0) {
+            // No correction (yet, or markers lost): the feed-forward exactly as without feedback.
+            self.comp.step(q, &mut self.step_out)
+        } else {
+            match fp.apply {
+                ApplyTo::Command => self.comp.step_with_correction(q, &u[..n], &mut self.step_out),
+                ApplyTo::Target => {
+                    let mut shaped = [0.0f64; MAX_JOINTS];
+                    for k in 0..n {
+                        shaped[k] = q[k] + u[k];
+                    }
+                    let r = self.comp.step(&shaped[..n], &mut self.step_out);
+                    // The command carries the real target; the correction is reported beside it.
+                    self.step_out.q_desired_deg[..n].copy_from_slice(q);
+                    self.step_out.correction_deg[..n].copy_from_slice(&u[..n]);
+                    r
+                }
+            }
+        };
+        fp.fb.note_bounds(self.step_out.upper_mask, self.step_out.lower_mask);
+        r.map_err(|_| ())
+    }
 }
 
 impl Stage for CompensatorStage {
@@ -73,7 +159,12 @@ impl Stage for CompensatorStage {
         }
         // A rejected target (NaN, wrong length) is counted by the compensator; nothing is sent,
         // so the actuator's watchdog sees the gap.
-        if self.comp.step(&t.q_desired_deg[..n], &mut self.step_out).is_err() {
+        let ok = if self.feedback.is_some() {
+            self.step_with_feedback(&t, n, cx).is_ok()
+        } else {
+            self.comp.step(&t.q_desired_deg[..n], &mut self.step_out).is_ok()
+        };
+        if !ok {
             return Ok(StepReport::IDLE);
         }
         let mut cmd = JointCommand::default();
@@ -86,17 +177,30 @@ impl Stage for CompensatorStage {
     }
 
     fn counters(&self) -> StageCounters {
+        let fb = self.feedback.as_ref().map(|f| (f.fb.counts(), f.fb.lost()));
         StageCounters {
-            rejected: self.comp.rejected_inputs() + self.bad_size,
+            // Unusable estimates (invalid, partial, NaN, outliers) count as rejected samples;
+            // marker-loss fallbacks as faults, and the node is degraded while markers are lost.
+            rejected: self.comp.rejected_inputs() + self.bad_size + fb.map_or(0, |(c, _)| c.rejected()),
+            faults: fb.map_or(0, |(c, _)| c.loss_episodes),
+            degraded: fb.is_some_and(|(_, lost)| lost),
             ..Default::default()
         }
     }
 
     fn summary(&self) -> Vec<String> {
-        vec![format!(
+        let mut v = vec![format!(
             "compensator: mode {}, rejected targets {}",
             self.comp.mode(),
             self.comp.rejected_inputs() + self.bad_size
-        )]
+        )];
+        if let Some(f) = &self.feedback {
+            v.push(f.fb.summary());
+        } else if self.feedback_idle {
+            v.push(
+                "feedback: enabled in the config, not applied in uncalibrated mode (in_uncalibrated = false)".into(),
+            );
+        }
+        v
     }
 }

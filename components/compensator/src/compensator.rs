@@ -66,6 +66,15 @@ pub struct StepOutput {
     pub chosen: Chosen,
     /// A safety bound (support, step or drift guard) moved a candidate this step.
     pub safety_limited: bool,
+    /// The vision-feedback correction added to the command this step
+    /// ([`Compensator::step_with_correction`]; zeros otherwise).
+    pub correction_deg: [f64; MAX_JOINTS],
+    /// Joints (bit k = joint k) whose sent command sits at an upper bound: lowered by the
+    /// joint limits, or at the top of the training data's command range. The feedback's
+    /// anti-windup does not integrate a positive error there.
+    pub upper_mask: u32,
+    /// Likewise at a lower bound.
+    pub lower_mask: u32,
 }
 
 /// The candidate a step sent (`[safety] never_worse`).
@@ -112,6 +121,9 @@ impl Default for StepOutput {
             history_appended: 0,
             chosen: Chosen::Refined,
             safety_limited: false,
+            correction_deg: [0.0; MAX_JOINTS],
+            upper_mask: 0,
+            lower_mask: 0,
         }
     }
 }
@@ -448,6 +460,29 @@ impl Compensator {
     /// last command (or the target is not used at all) with `stop_reason = RejectedInput`,
     /// the histories are untouched, and the rejection is counted.
     pub fn step(&mut self, q_desired_deg: &[f64], out: &mut StepOutput) -> Result<(), StepError> {
+        self.step_inner(q_desired_deg, None, out)
+    }
+
+    /// [`Self::step`] with `correction_deg` (one entry per joint, degrees) added to the
+    /// feed-forward command before the output stage (rate limit, joint limits): the vision
+    /// feedback's `apply = "command"`. The histories record the command actually sent, the
+    /// correction included, as the forward model must see what the robot received; the
+    /// prediction is at that command. A non-finite entry counts as 0. Allocation-free.
+    pub fn step_with_correction(
+        &mut self,
+        q_desired_deg: &[f64],
+        correction_deg: &[f64],
+        out: &mut StepOutput,
+    ) -> Result<(), StepError> {
+        self.step_inner(q_desired_deg, Some(correction_deg), out)
+    }
+
+    fn step_inner(
+        &mut self,
+        q_desired_deg: &[f64],
+        correction: Option<&[f64]>,
+        out: &mut StepOutput,
+    ) -> Result<(), StepError> {
         let t0 = Instant::now();
         let j = self.j;
         out.joints = j;
@@ -467,6 +502,9 @@ impl Compensator {
             out.history_appended = 0;
             out.chosen = Chosen::Refined;
             out.safety_limited = false;
+            out.correction_deg = [0.0; MAX_JOINTS];
+            out.upper_mask = 0;
+            out.lower_mask = 0;
             out.elapsed_ns = t0.elapsed().as_nanos() as u64;
             return Err(e);
         }
@@ -608,8 +646,35 @@ impl Compensator {
         out.safety_limited = limited;
         out.q_refined_deg = q;
 
-        // Output stage: rate limit against the last command sent, then joint limits.
+        // Where the result sits at the training data's command range (not where a pin to an
+        // uncovered target put it): the feedback's anti-windup.
+        let (mut upper, mut lower) = (0u32, 0u32);
+        if let (Some(sup), true, false) = (&self.support, self.safety.support, self.mode == Mode::Uncalibrated) {
+            let s = self.safety.support_scale;
+            for k in 0..j {
+                let pinned = lo[k] == hi[k] && lo[k] == q_des[k];
+                let c = 0.5 * (sup.cmd_min_deg[k] + sup.cmd_max_deg[k]);
+                let h = 0.5 * (sup.cmd_max_deg[k] - sup.cmd_min_deg[k]) * s;
+                if !pinned && q[k] >= c + h - 1e-9 {
+                    upper |= 1 << k;
+                }
+                if !pinned && q[k] <= c - h + 1e-9 {
+                    lower |= 1 << k;
+                }
+            }
+        }
+
+        // Output stage: the feedback's correction (when given), the rate limit against the
+        // last command sent, then the joint limits.
         let mut cmd = q;
+        out.correction_deg = [0.0; MAX_JOINTS];
+        if let Some(corr) = correction {
+            for k in 0..j.min(corr.len()) {
+                let v = if corr[k].is_finite() { corr[k] } else { 0.0 };
+                cmd[k] += v;
+                out.correction_deg[k] = v;
+            }
+        }
         out.rate_limited = false;
         if self.rate_limit_deg_s > 0.0 && self.has_last {
             let max_d = self.rate_limit_deg_s * self.period_ns as f64 * 1e-9;
@@ -631,8 +696,17 @@ impl Compensator {
             if clamped != a {
                 out.joint_limited = true;
             }
+            for k in 0..N_JOINTS {
+                if clamped[k] < a[k] {
+                    upper |= 1 << k;
+                } else if clamped[k] > a[k] {
+                    lower |= 1 << k;
+                }
+            }
             cmd[..N_JOINTS].copy_from_slice(&clamped);
         }
+        out.upper_mask = upper;
+        out.lower_mask = lower;
 
         // The forward model's expectation for what is actually sent.
         let mut evals = res.evals;

@@ -1,5 +1,6 @@
 //! `configs/controller.toml`: every setting of the compensator.
 
+use crate::feedback::FeedbackConfig;
 use crate::history::HistoryRule;
 use crate::refine::{NewtonParams, PaperParams};
 use serde::Deserialize;
@@ -231,6 +232,10 @@ pub struct ControllerConfig {
     /// Safe refinement; absent = the literal paper (no bounds beyond the joint limits).
     #[serde(default)]
     pub safety: SafetyConfig,
+    /// Vision feedback from the estimator's `JointEstimate` stream; absent = off (pure
+    /// feed-forward, exactly as without the table).
+    #[serde(default)]
+    pub feedback: FeedbackConfig,
     /// Where the config came from (relative model paths resolve against it).
     #[serde(skip)]
     pub source: Option<PathBuf>,
@@ -378,6 +383,9 @@ impl ControllerConfig {
                 sf.correction_scale.to_string(),
                 "must be in [0, 10] (0 = off)",
             );
+        }
+        if let Err((field, value, reason)) = self.feedback.check() {
+            return bad(field, value, reason);
         }
         let lc = &self.load_check;
         if !(1..=10_000).contains(&lc.windows) {

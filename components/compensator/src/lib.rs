@@ -13,6 +13,9 @@
 //!   exact Jacobian), generic over [`WindowModel`].
 //! - [`Compensator`]: histories sampled at the model's step, modes, budget, limits:
 //!   `Compensator::from_config(&ControllerConfig, &Robot)?.step(&q_desired_deg, &mut out)`.
+//! - [`Feedback`]: the vision feedback (`[feedback]`): a bounded, leaky, anti-windup
+//!   integrator of the error between the desired angles when a frame was taken and the
+//!   estimator's measurement, with marker-loss fallback to the feed-forward alone.
 //! - [`offline`] and [`bench`]: the `bowden compensate` and `bowden bench compensate` engines.
 
 // Numeric kernels index several parallel arrays with one loop variable; iterator chains over
@@ -23,6 +26,7 @@ pub mod bench;
 pub mod compensator;
 pub mod config;
 pub mod contract;
+pub mod feedback;
 pub mod history;
 pub mod model;
 pub mod net;
@@ -32,6 +36,7 @@ pub mod refine;
 
 pub use compensator::{Chosen, Compensator, CompensatorError, SafetyCounts, StepError, StepOutput};
 pub use config::{ConfigError, ControllerConfig, EvaluatorChoice, Mode, SafetyConfig};
+pub use feedback::{ApplyTo, Feedback, FeedbackConfig, FeedbackCounts, Observation};
 pub use history::{History, HistoryRule};
 pub use model::{Evaluator, LoadOptions, Model, ModelError, TractEvaluator};
 pub use net::{IncrementalNet, Net, NetSummary};

@@ -1,36 +1,42 @@
 //! The compensation step allocates nothing: a counting global allocator over many steps of
 //! every mode, with history shifts, interpolated multi-entry appends, resets and rejected
 //! targets, on the TCN fixtures and (newton, forward model only) on the FNN, LSTM and
-//! TCN-LSTM fixtures; and with every safeguard of the safe refinement active.
+//! TCN-LSTM fixtures; with every safeguard of the safe refinement active; and on the vision
+//! feedback path (estimates valid, NaN, invalid, partial, stale; target shaping and command
+//! correction; marker loss and return).
 
 mod common;
 use bowden_compensator::bench::random_trajectory;
-use bowden_compensator::{Compensator, ControllerConfig, Mode, Model, StepOutput};
+use bowden_compensator::{ApplyTo, Compensator, ControllerConfig, Feedback, FeedbackConfig, Mode, Model, StepOutput};
+use bowden_interfaces::JointEstimate;
 use bowden_kinematics::Robot;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
-use std::sync::atomic::{AtomicU64, Ordering};
 
 struct Counting;
-static ALLOCS: AtomicU64 = AtomicU64::new(0);
+// Per thread: the tests of this file run in parallel, and one thread's allocations must not
+// show in another's count.
 thread_local! {
     static COUNTING: Cell<bool> = const { Cell::new(false) };
+    static ALLOCS: Cell<u64> = const { Cell::new(0) };
+}
+
+fn note_alloc() {
+    if COUNTING.try_with(|c| c.get()).unwrap_or(false) {
+        let _ = ALLOCS.try_with(|a| a.set(a.get() + 1));
+    }
 }
 
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        if COUNTING.with(|c| c.get()) {
-            ALLOCS.fetch_add(1, Ordering::Relaxed);
-        }
+        note_alloc();
         unsafe { System.alloc(l) }
     }
     unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
         unsafe { System.dealloc(p, l) }
     }
     unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        if COUNTING.with(|c| c.get()) {
-            ALLOCS.fetch_add(1, Ordering::Relaxed);
-        }
+        note_alloc();
         unsafe { System.realloc(p, l, n) }
     }
 }
@@ -39,11 +45,11 @@ unsafe impl GlobalAlloc for Counting {
 static A: Counting = Counting;
 
 fn count<R>(f: impl FnOnce() -> R) -> (R, u64) {
-    let before = ALLOCS.load(Ordering::Relaxed);
+    let before = ALLOCS.with(|a| a.get());
     COUNTING.with(|c| c.set(true));
     let r = f();
     COUNTING.with(|c| c.set(false));
-    (r, ALLOCS.load(Ordering::Relaxed) - before)
+    (r, ALLOCS.with(|a| a.get()) - before)
 }
 
 fn run_steps(comp: &mut Compensator, targets: &[[f64; 5]]) -> (u64, u64) {
@@ -123,6 +129,101 @@ fn step_does_not_allocate() {
         let ((evals, _), allocs) = count(|| run_steps(&mut comp, short));
         assert_eq!(allocs, 0, "{name}: {allocs} allocations");
         assert!(evals >= short.len() as u64);
+    }
+}
+
+/// The node's feedback cycle (src/nodes/compensator.rs) over `targets`, one per ms, with a
+/// camera frame every 33 ms arriving 66 ms later; frames are valid, NaN, invalid or partial in
+/// turn, and none arrive between 30 % and 60 % of the run (markers lost, then back).
+fn feedback_cycle(comp: &mut Compensator, fb: &mut Feedback, apply: ApplyTo, targets: &[[f64; 5]]) -> u64 {
+    let mut out = StepOutput::default();
+    let mut queue = [JointEstimate::default(); 4];
+    let (mut head, mut len) = (0usize, 0usize);
+    let mut shaped = [0.0f64; 5];
+    let mut u = [0.0f64; 5];
+    let n = targets.len() as u64;
+    for (k, q) in targets.iter().enumerate() {
+        let (k, now) = (k as u64, k as u64 * 1_000_000);
+        fb.begin(k, q, now);
+        while len > 0 && queue[head].header.t_origin_ns + 66_000_000 <= now {
+            fb.observe(&queue[head], now);
+            head = (head + 1) % queue.len();
+            len -= 1;
+        }
+        u.copy_from_slice(fb.update(now));
+        match apply {
+            ApplyTo::Target => {
+                for (s, (q, u)) in shaped.iter_mut().zip(q.iter().zip(&u)) {
+                    *s = q + u;
+                }
+                comp.step(&shaped, &mut out).unwrap();
+            }
+            ApplyTo::Command => comp.step_with_correction(q, &u, &mut out).unwrap(),
+        }
+        fb.note_bounds(out.upper_mask, out.lower_mask);
+        let lost = k > 3 * n / 10 && k < 6 * n / 10;
+        if k.is_multiple_of(33) && !lost && len < queue.len() {
+            let mut e = JointEstimate {
+                n_joints: 5,
+                quality: JointEstimate::QUALITY_VALID,
+                joint_valid_mask: 0b11111,
+                ..Default::default()
+            };
+            e.header.tick = k;
+            e.header.t_origin_ns = now;
+            for (e, q) in e.q_phy_deg.iter_mut().zip(q) {
+                *e = q - 0.5;
+            }
+            match (k / 33) % 5 {
+                1 => e.q_phy_deg[2] = f64::NAN,
+                2 => e.quality = JointEstimate::QUALITY_INVALID,
+                3 => {
+                    e.quality = JointEstimate::QUALITY_PARTIAL;
+                    e.joint_valid_mask = 0b00111;
+                }
+                _ => {}
+            }
+            queue[(head + len) % queue.len()] = e;
+            len += 1;
+        }
+    }
+    fb.counts().updates
+}
+
+#[test]
+fn feedback_path_does_not_allocate() {
+    let robot = Robot::paper_default();
+    let targets = random_trajectory(&robot, 6000, 0.06, 7);
+    for (mode, apply) in [
+        (Mode::Newton, ApplyTo::Target),
+        (Mode::Paper, ApplyTo::Command),
+        (Mode::Uncalibrated, ApplyTo::Target),
+    ] {
+        let mut c = ControllerConfig::shipped();
+        c.mode = mode;
+        c.feedback = FeedbackConfig {
+            enabled: true,
+            apply,
+            use_partial: mode == Mode::Paper,
+            ..FeedbackConfig::default()
+        };
+        let mut comp = Compensator::from_config(&c, &robot).unwrap();
+        comp.set_budget_ns(0);
+        let mut fb = Feedback::new(&c.feedback, comp.joints(), 1_000_000);
+        let (updates, allocs) = count(|| feedback_cycle(&mut comp, &mut fb, apply, &targets));
+        assert_eq!(
+            allocs,
+            0,
+            "{mode} {apply:?}: {allocs} allocations in {} cycles",
+            targets.len()
+        );
+        let fc = fb.counts();
+        assert!(updates > 20, "{mode} {apply:?}: the feedback ran: {fc:?}");
+        assert!(fc.not_finite > 5 && fc.invalid > 5 && fc.loss_episodes >= 1, "{fc:?}");
+        assert!(fb.u_abs_max() > 0.0);
+        // reset keeps the ring: no allocation either.
+        let ((), allocs) = count(|| fb.reset());
+        assert_eq!(allocs, 0);
     }
 }
 
