@@ -81,6 +81,23 @@ fn plot_err(e: impl std::fmt::Display, path: &Path) -> EvalError {
     }
 }
 
+/// A figure's canvas: white, titled, with its legend strip on top; the area below it.
+fn canvas<'a>(
+    file: &'a Path,
+    size: (u32, u32),
+    title: &str,
+    legend_h: u32,
+    items: &[(String, Swatch)],
+) -> Result<DrawingArea<SVGBackend<'a>, Shift>, EvalError> {
+    let e = |x: String| plot_err(x, file);
+    let root = SVGBackend::new(file, size).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(x.to_string()))?;
+    let root = root.titled(title, ("sans-serif", 22)).map_err(|x| e(x.to_string()))?;
+    let (legend, rest) = root.split_vertically(legend_h);
+    legend_strip(&legend, items).map_err(e)?;
+    Ok(rest)
+}
+
 /// Repeat 0 of every controller on `trajectory`, in the runs' order.
 fn repeat0<'a>(runs: &'a [RunRecord], trajectory: &str) -> Vec<&'a RunRecord> {
     runs.iter()
@@ -233,16 +250,13 @@ pub fn fig12(robot: &Robot, runs: &[RunRecord], trajectory: &str, dir: &Path) ->
     let h = title_h + legend_h + rows * row_h + err_h;
     let e = |x: String| plot_err(x, &file);
     {
-        let root = SVGBackend::new(&file, (w, h)).into_drawing_area();
-        root.fill(&WHITE).map_err(|x| e(x.to_string()))?;
-        let root = root
-            .titled(
-                &format!("{trajectory}: desired vs reached tip path, by vision and by truth (repeat 0) — Fig. 12"),
-                ("sans-serif", 22),
-            )
-            .map_err(|x| e(x.to_string()))?;
-        let (legend, rest) = root.split_vertically(legend_h);
-        legend_strip(&legend, &legend_items(&sel, "○ per point")).map_err(e)?;
+        let rest = canvas(
+            &file,
+            (w, h),
+            &format!("{trajectory}: desired vs reached tip path, by vision and by truth (repeat 0) — Fig. 12"),
+            legend_h,
+            &legend_items(&sel, "○ per point"),
+        )?;
         let (paths, errors) = rest.split_vertically(rows * row_h);
         let cells = paths.split_evenly((rows as usize, 3));
         for (i, (run, ps)) in sel.iter().zip(&all).enumerate() {
@@ -314,7 +328,7 @@ pub fn fig12(robot: &Robot, runs: &[RunRecord], trajectory: &str, dir: &Path) ->
             )
             .map_err(e)?;
         }
-        root.present().map_err(|x| e(x.to_string()))?;
+        rest.present().map_err(|x| e(x.to_string()))?;
     }
     Ok(Some(file))
 }
@@ -361,16 +375,13 @@ pub fn fig13(runs: &[RunRecord], trajectory: &str, dir: &Path) -> Result<Option<
     let h = title_h + legend_h + rows * row_h + err_h;
     let e = |x: String| plot_err(x, &file);
     {
-        let root = SVGBackend::new(&file, (w, h)).into_drawing_area();
-        root.fill(&WHITE).map_err(|x| e(x.to_string()))?;
-        let root = root
-            .titled(
-                &format!("{trajectory}: forceps angles q4, q5, desired vs reached (repeat 0) — Fig. 13"),
-                ("sans-serif", 22),
-            )
-            .map_err(|x| e(x.to_string()))?;
-        let (legend, rest) = root.split_vertically(legend_h);
-        legend_strip(&legend, &legend_items(&sel, "○ per point")).map_err(e)?;
+        let rest = canvas(
+            &file,
+            (w, h),
+            &format!("{trajectory}: forceps angles q4, q5, desired vs reached (repeat 0) — Fig. 13"),
+            legend_h,
+            &legend_items(&sel, "○ per point"),
+        )?;
         let (tracks, errors) = rest.split_vertically(rows * row_h);
         let cells = tracks.split_evenly((rows as usize, 2));
         for (i, run) in sel.iter().enumerate() {
@@ -429,7 +440,7 @@ pub fn fig13(runs: &[RunRecord], trajectory: &str, dir: &Path) -> Result<Option<
             )
             .map_err(e)?;
         }
-        root.present().map_err(|x| e(x.to_string()))?;
+        rest.present().map_err(|x| e(x.to_string()))?;
     }
     Ok(Some(file))
 }
