@@ -41,6 +41,8 @@ enum Command {
     Trajectory(cmd::trajectory::Command),
     #[command(flatten)]
     Shipped(cmd::shipped::Command),
+    #[command(flatten)]
+    Adapt(cmd::adapt::Command),
     /// Latency and throughput benchmarks printing percentiles.
     Bench {
         #[command(subcommand)]
@@ -69,6 +71,7 @@ fn main() -> std::process::ExitCode {
         Command::Tune(c) => cmd::tune::run(c),
         Command::Trajectory(c) => cmd::trajectory::run(c),
         Command::Shipped(c) => cmd::shipped::run(c),
+        Command::Adapt(c) => cmd::adapt::run(c),
         Command::Bench { what } => cmd::bench::run(what),
     };
     match result {

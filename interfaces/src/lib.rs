@@ -327,6 +327,73 @@ pub struct ClockTick {
     pub _pad: u32,
 }
 
+/// New model weights are ready: `adapt` → compensator (docs/architecture.md, "Online
+/// adaptation"). The weights themselves are ONNX files on disk (`dir/fwd.onnx`,
+/// `dir/inv.onnx`); the sample names them and carries their FNV-1a 64 hashes, so a file that
+/// changed or was cut short after the announcement is refused rather than loaded.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("bowden::ModelUpdate")]
+#[repr(C)]
+pub struct ModelUpdate {
+    pub header: SampleHeader,
+    /// Generation of the adapted models, from 1 (each accepted fine-tune adds one).
+    pub generation: u64,
+    /// FNV-1a 64 of `dir/fwd.onnx` and `dir/inv.onnx`; 0 = that model is not part of the update.
+    pub fwd_hash: u64,
+    pub inv_hash: u64,
+    /// Validation RMSE on held-out recent data of the models in use and of the new ones, deg
+    /// (NaN where a direction is not part of the update).
+    pub fwd_val_before_deg: f64,
+    pub fwd_val_after_deg: f64,
+    pub inv_val_before_deg: f64,
+    pub inv_val_after_deg: f64,
+    /// Absolute directory of the generation's files, NUL-padded UTF-8.
+    pub dir: [u8; 256],
+}
+
+impl Default for ModelUpdate {
+    fn default() -> Self {
+        Self {
+            header: SampleHeader::default(),
+            generation: 0,
+            fwd_hash: 0,
+            inv_hash: 0,
+            fwd_val_before_deg: f64::NAN,
+            fwd_val_after_deg: f64::NAN,
+            inv_val_before_deg: f64::NAN,
+            inv_val_after_deg: f64::NAN,
+            dir: [0; 256],
+        }
+    }
+}
+
+impl ModelUpdate {
+    /// Writes `dir`; `false` (and nothing written) when it does not fit in 255 bytes.
+    pub fn set_dir(&mut self, dir: &str) -> bool {
+        if dir.len() > 255 {
+            return false;
+        }
+        self.dir = [0; 256];
+        self.dir[..dir.len()].copy_from_slice(dir.as_bytes());
+        true
+    }
+    /// The directory as text; `None` if it is not UTF-8.
+    pub fn dir(&self) -> Option<&str> {
+        let end = self.dir.iter().position(|&b| b == 0).unwrap_or(256);
+        core::str::from_utf8(&self.dir[..end]).ok()
+    }
+}
+
+/// FNV-1a 64-bit hash of `bytes`: a stable content hash (the [`ModelUpdate`] file check).
+pub fn fnv1a64(bytes: &[u8]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
 /// Checks that every used entry of an angle array is finite.
 pub fn all_finite(v: &[f64]) -> bool {
     v.iter().all(|x| x.is_finite())
@@ -346,4 +413,5 @@ const _: () = {
     assert!(size_of::<ComponentStatus>() == 128 && align_of::<ComponentStatus>() == 8);
     assert!(size_of::<SafetyCommand>() == 32 && align_of::<SafetyCommand>() == 8);
     assert!(size_of::<ClockTick>() == 48 && align_of::<ClockTick>() == 8);
+    assert!(size_of::<ModelUpdate>() == 336 && align_of::<ModelUpdate>() == 8);
 };

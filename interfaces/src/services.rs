@@ -23,8 +23,11 @@ pub const SAFETY: &str = "bowden/safety";
 /// Lockstep clock. Payload: `ClockTick`.
 pub const CLOCK: &str = "bowden/clock";
 
+/// New model weights from the `adapt` node. Payload: `ModelUpdate`.
+pub const MODEL_UPDATE: &str = "bowden/model_update";
+
 /// Every service name, for listing, recording and cleanup.
-pub const ALL: [&str; 10] = [
+pub const ALL: [&str; 11] = [
     JOINT_TARGET,
     JOINT_COMMAND,
     MOTOR_COMMAND,
@@ -35,6 +38,7 @@ pub const ALL: [&str; 10] = [
     COMPONENT_STATUS,
     SAFETY,
     CLOCK,
+    MODEL_UPDATE,
 ];
 
 /// `name` under an optional namespace: `qualified("", X) == X`, `qualified("arm2", X) == "arm2/" + X`.

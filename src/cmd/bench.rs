@@ -14,6 +14,8 @@ pub enum Command {
     Learning(super::learning::BenchCommand),
     #[command(flatten)]
     Transfer(super::transfer::BenchCommand),
+    #[command(flatten)]
+    Swap(super::adapt::BenchCommand),
 }
 
 pub fn run(c: Command) -> anyhow::Result<()> {
@@ -23,5 +25,6 @@ pub fn run(c: Command) -> anyhow::Result<()> {
         Command::Runtime(c) => super::runtime::bench(c),
         Command::Learning(c) => super::learning::bench(c),
         Command::Transfer(c) => super::transfer::bench(c),
+        Command::Swap(c) => super::adapt::bench(c),
     }
 }

@@ -33,16 +33,16 @@ pub enum Command {
 pub struct ModelArgs {
     /// Forward model (ONNX, contract of docs/architecture.md §5); default: the config's `model_fwd`.
     #[arg(long)]
-    model_fwd: Option<PathBuf>,
+    pub model_fwd: Option<PathBuf>,
     /// Inverse model; default: the config's `model_inv`.
     #[arg(long)]
-    model_inv: Option<PathBuf>,
+    pub model_inv: Option<PathBuf>,
     /// Controller config; found as given, under $BOWDEN_HOME, or built in (`bowden shipped`).
     #[arg(long, default_value = "configs/controller.toml")]
-    config: PathBuf,
+    pub config: PathBuf,
     /// Robot config for the joint limits (default: the shipped configs/robot.toml).
     #[arg(long)]
-    robot: Option<PathBuf>,
+    pub robot: Option<PathBuf>,
 }
 
 #[derive(Args, Debug)]
@@ -125,7 +125,7 @@ fn absolute(p: &Path) -> anyhow::Result<PathBuf> {
     }
 }
 
-fn load_setup(m: &ModelArgs) -> anyhow::Result<(ControllerConfig, Robot)> {
+pub fn load_setup(m: &ModelArgs) -> anyhow::Result<(ControllerConfig, Robot)> {
     // The config's relative model paths resolve beside it, wherever it was found.
     let config = crate::home::resolve(&m.config)?;
     let mut cfg = ControllerConfig::load(&config.path)

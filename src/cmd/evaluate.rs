@@ -7,7 +7,9 @@ use crate::home::Resolved;
 use anyhow::{bail, Context, Result};
 use bowden_evaluation::report::{summarise, write_report};
 use bowden_evaluation::session::{self, SlackEvents};
-use bowden_evaluation::{camera_fps_for, pipeline_variant, run_trajectory, EvalSettings, RunSpec, CONTROLLERS};
+use bowden_evaluation::{
+    camera_fps_for, pipeline_add_node, pipeline_variant, run_trajectory, EvalSettings, RunSpec, CONTROLLERS,
+};
 use bowden_kinematics::Robot;
 use bowden_runtime::config::{Overrides, PipelineConfig};
 use bowden_runtime::launch::LaunchOptions;
@@ -83,6 +85,11 @@ pub struct EvaluateArgs {
     /// With `--session`: the length of a window of the error-over-time tables, s.
     #[arg(long, default_value_t = 60.0, value_name = "SECONDS")]
     pub window_s: f64,
+    /// Online adaptation while tracking: adds an `adapt` node with these settings
+    /// (configs/adapt.toml layout) beside the paper and newton controllers' pipelines; each
+    /// run starts from the controller's models, its generations go to `<report>/adapt-<controller>`.
+    #[arg(long, value_name = "FILE")]
+    pub adapt: Option<PathBuf>,
 }
 
 /// The arguments with their files found (`crate::home`); the other fields through `Deref`.
@@ -93,6 +100,7 @@ struct Files {
     trajectories_dir: Resolved,
     plant: Option<Resolved>,
     controller_config: Option<Resolved>,
+    adapt: Option<Resolved>,
 }
 
 impl Files {
@@ -108,6 +116,7 @@ impl Files {
                 .as_ref()
                 .map(|p| find(p, "--controller-config"))
                 .transpose()?,
+            adapt: args.adapt.as_ref().map(|p| find(p, "--adapt")).transpose()?,
             args,
         })
     }
@@ -238,11 +247,18 @@ fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: 
                 set.push((node, "config", toml::Value::String(abs.display().to_string())));
             }
         }
-        pipelines.push(pipeline_variant(
-            &a.config.path,
-            &set,
-            &work_dir.join(format!("pipeline-{c}.toml")),
-        )?);
+        let file = pipeline_variant(&a.config.path, &set, &work_dir.join(format!("pipeline-{c}.toml")))?;
+        if let (Some(f), true) = (&a.adapt, c != "uncalibrated") {
+            let abs = std::fs::canonicalize(&f.path).with_context(|| f.shown())?;
+            let state = std::path::absolute(report.join(format!("adapt-{c}")))?;
+            let mut params = toml::Table::new();
+            params.insert("config".into(), toml::Value::String(abs.display().to_string()));
+            params.insert("state_dir".into(), toml::Value::String(state.display().to_string()));
+            // Every run starts from the controller's own models.
+            params.insert("resume".into(), toml::Value::Boolean(false));
+            pipeline_add_node(&file, "adapt", "adapt", params)?;
+        }
+        pipelines.push(file);
     }
     let settings = EvalSettings {
         settle_ticks: a.settle_ticks,

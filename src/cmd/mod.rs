@@ -1,5 +1,6 @@
 //! Subcommands, one module per concern (and per owner).
 
+pub mod adapt;
 pub mod bench;
 pub mod camera;
 pub mod collect;

@@ -12,11 +12,20 @@
 //! line, the files it reads (the unit's plant file, the pipeline's configs, the trajectories, the
 //! controller configs) and the stamps of the steps before it; the `bowden` binary itself is not
 //! one: after changing the code, use another `--out` (or remove the stamps).
+//!
+//! On a cluster scheduler the units split like a sweep's runs: `--plan` numbers the selected
+//! units and fingerprints each (version, seed, recipe, family, unit plant, role), `--shard I/N`
+//! runs the units whose index ≡ I (mod N), every unit leaves `UNIT/outcome.json` (written
+//! atomically, by local runs too), and `--merge` reads them back, refusing missing ones and ones
+//! of another fingerprint by name, and writes the report. The merged report's results (summary,
+//! never-worse checks, rows) equal a local run's; its timings, load and parallelism are not
+//! one process's and are marked as merged.
 
 use anyhow::{anyhow, bail, Context, Result};
 use bowden_evaluation::metrics::reduction_pct;
 use bowden_evaluation::CONTROLLERS;
 use bowden_learning::dataset::fnv1a64_hex;
+use bowden_learning::sweep::{Selection, SHARDING};
 use bowden_learning::Arch;
 use clap::{Args, Subcommand};
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
@@ -64,6 +73,29 @@ pub struct TransferArgs {
     /// trajectory. Its numbers say nothing about transfer; use another --out.
     #[arg(long)]
     pub quick: bool,
+    /// Print the selected units instead of running them: index, unit, role, directory,
+    /// fingerprint (config, recipe, seed, unit plant, version) and status in --out; --json for
+    /// JSON.
+    #[arg(long, conflicts_with_all = ["shard", "merge"])]
+    pub plan: bool,
+    /// Run only shard I of N of the selected units: those whose index (see --plan) ≡ I (mod N),
+    /// e.g. "$SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT"; each unit leaves UNIT/outcome.json,
+    /// no report is written (see --merge). Exits non-zero if one of its units failed.
+    #[arg(long, value_name = "I/N", conflicts_with = "merge")]
+    pub shard: Option<String>,
+    /// Run nothing: read every selected unit's outcome.json (refusing missing ones and ones of
+    /// another config, by name) and write transfer.md, transfer.json and transfer.svg.
+    #[arg(long)]
+    pub merge: bool,
+    /// With --plan: print the plan as JSON on stdout instead of the table.
+    #[arg(long, requires = "plan")]
+    pub json: bool,
+    /// With --plan: also write the plan JSON to FILE.
+    #[arg(long, value_name = "FILE", requires = "plan")]
+    pub json_out: Option<PathBuf>,
+    /// Overwrite --json-out if it exists.
+    #[arg(long)]
+    pub force: bool,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
@@ -362,7 +394,7 @@ fn file_stem(p: &Path) -> String {
         .unwrap_or_else(|| "plant".into())
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 enum Role {
     Tuning,
@@ -415,7 +447,7 @@ struct Stamp {
     finished_unix_ms: u128,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 enum StepStatus {
     Ran,
@@ -423,7 +455,7 @@ enum StepStatus {
     Failed,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 struct StepRecord {
     step: String,
     status: StepStatus,
@@ -434,7 +466,7 @@ struct StepRecord {
     log: Option<PathBuf>,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 struct Failure {
     step: String,
     status: String,
@@ -992,7 +1024,7 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
 // Results
 
 /// The six errors of one (trajectory, controller), or their reductions in percent.
-#[derive(Debug, Clone, Copy, Default, Serialize)]
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize)]
 struct Six {
     position_vision: Option<f64>,
     position_truth: Option<f64>,
@@ -1041,7 +1073,7 @@ impl Six {
 }
 
 /// One (trajectory, calibrated controller) of a unit.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 struct Row {
     trajectory: String,
     controller: String,
@@ -1052,7 +1084,7 @@ struct Row {
     reduction_pct: Six,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 struct UnitOutcome {
     family: String,
     model: String,
@@ -1236,6 +1268,10 @@ struct Report {
     never_worse: Vec<NeverWorse>,
     timing: Vec<TimingRow>,
     units: Vec<UnitOutcome>,
+    /// Read back from the units' outcome files (`--merge`) instead of run by this process:
+    /// jobs, threads, cores and load are then the merging process's, and `wall_seconds` is the
+    /// sum of the units' wall times.
+    merged: bool,
     wall_seconds: f64,
 }
 
@@ -1471,7 +1507,7 @@ fn markdown(rep: &Report) -> String {
     let ran: Vec<String> = rep.units.iter().map(|u| format!("{}/{}", u.family, u.unit)).collect();
     let _ = writeln!(
         out,
-        "- This run: `--units {}`, {} unit(s) ({}), {} at once, train threads {}; config `{}`, output `{}`.\n",
+        "- This run: `--units {}`, {} unit(s) ({}), {}; config `{}`, output `{}`.\n",
         match rep.units_selected {
             UnitSet::Tuning => "tuning",
             UnitSet::Heldout => "heldout",
@@ -1479,8 +1515,11 @@ fn markdown(rep: &Report) -> String {
         },
         rep.units.len(),
         ran.join(", "),
-        rep.jobs,
-        rep.train_threads,
+        if rep.merged {
+            "merged from the units' outcome files (run as shards, `--shard I/N`)".to_string()
+        } else {
+            format!("{} at once, train threads {}", rep.jobs, rep.train_threads)
+        },
         shown(&rep.project_dir, &rep.config),
         shown(&rep.project_dir, &rep.out)
     );
@@ -1666,12 +1705,19 @@ fn markdown(rep: &Report) -> String {
         }
         out.push('\n');
     }
+    let machine = if rep.merged {
+        "on the machines that ran the shards".to_string()
+    } else {
+        format!(
+            "on a machine with {} core(s), load average {} at the start",
+            rep.cores,
+            rep.load_average.map_or_else(|| "unknown".into(), |l| format!("{l:.2}"))
+        )
+    };
     let _ = writeln!(
         out,
-        "## Timing per step\n\nWall seconds (CPU seconds of the subprocesses, user + system) on a machine with {} core(s), \
-         load average {} at the start. `*`: steps skipped in this run (finished earlier: the times are the stamp's).\n",
-        rep.cores,
-        rep.load_average.map_or_else(|| "unknown".into(), |l| format!("{l:.2}"))
+        "## Timing per step\n\nWall seconds (CPU seconds of the subprocesses, user + system) {machine}. \
+         `*`: steps skipped in this run (finished earlier: the times are the stamp's).\n"
     );
     let _ = writeln!(
         out,
@@ -1714,7 +1760,15 @@ fn markdown(rep: &Report) -> String {
             secs(mean(|t| Some(t.total)))
         );
     }
-    let _ = writeln!(out, "\nWall time of this run: {:.0} s.\n", rep.wall_seconds);
+    if rep.merged {
+        let _ = writeln!(
+            out,
+            "\nWall time of the units (run as shards), summed: {:.0} s.\n",
+            rep.wall_seconds
+        );
+    } else {
+        let _ = writeln!(out, "\nWall time of this run: {:.0} s.\n", rep.wall_seconds);
+    }
     if !tuning.is_empty() {
         let _ = writeln!(
             out,
@@ -1870,6 +1924,181 @@ fn plot(path: &Path, rep: &Report, units: &[&UnitOutcome], which: &str) -> Resul
 // ---------------------------------------------------------------------------------------------
 // The command
 
+// ---------------------------------------------------------------------------------------------
+// Plan, shards, merge
+
+/// `UNIT/outcome.json`: what a unit's run reported, for `--merge` to read back.
+#[derive(Debug, Serialize, Deserialize)]
+struct OutcomeFile {
+    format: String,
+    /// [`unit_fingerprint`] of the run that wrote it.
+    fingerprint: String,
+    outcome: UnitOutcome,
+}
+
+const OUTCOME_FORMAT: &str = "bowden-transfer-unit/1";
+
+fn outcome_path(p: &UnitPlan) -> PathBuf {
+    p.dir.join("outcome.json")
+}
+
+/// FNV-1a 64 (hex) of what a unit's outcome depends on: the bowden version, the seed, the
+/// recipe, the family, the unit's plant text and its role. Like the stamps, not the binary
+/// itself: after changing the code, use another `--out`.
+fn unit_fingerprint(recipe: &Recipe, seed: u64, fam: &Family, p: &UnitPlan) -> Result<String> {
+    #[derive(Serialize)]
+    struct Identity<'a> {
+        version: &'a str,
+        seed: u64,
+        recipe: &'a Recipe,
+        family: &'a str,
+        plant: &'a str,
+        unit: u64,
+        role: Role,
+    }
+    // A plant file that cannot be read fails its unit at the `plant` step, not the plan.
+    let plant = unit_plant_text(&fam.plant, p.unit).unwrap_or_else(|e| format!("unreadable: {e:#}"));
+    let id = Identity {
+        version: env!("CARGO_PKG_VERSION"),
+        seed,
+        recipe,
+        family: &fam.name,
+        plant: &plant,
+        unit: p.unit,
+        role: p.role,
+    };
+    Ok(fnv1a64_hex(&serde_json::to_vec(&id)?))
+}
+
+enum OutcomeState {
+    Done(Box<UnitOutcome>),
+    Missing,
+    /// There, but not a complete outcome of this unit and config: why.
+    Bad(String),
+}
+
+fn read_outcome(p: &UnitPlan, fingerprint: &str) -> OutcomeState {
+    let text = match std::fs::read_to_string(outcome_path(p)) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return OutcomeState::Missing,
+        Err(e) => return OutcomeState::Bad(format!("cannot read: {e}")),
+    };
+    match serde_json::from_str::<OutcomeFile>(&text) {
+        Err(e) => OutcomeState::Bad(format!("not a complete outcome file ({e})")),
+        Ok(f) if f.format != OUTCOME_FORMAT => {
+            OutcomeState::Bad(format!("format {:?}, expected {OUTCOME_FORMAT:?}", f.format))
+        }
+        Ok(f) if f.fingerprint != fingerprint => OutcomeState::Bad(format!(
+            "made with another config, recipe, seed, plant or bowden version (fingerprint {} ≠ {fingerprint})",
+            f.fingerprint
+        )),
+        Ok(f) => OutcomeState::Done(Box::new(f.outcome)),
+    }
+}
+
+/// Every planned unit's outcome, or an error listing the missing ones by index and naming each
+/// file that is not this plan's. A finished unit's rows are read again from its evaluation's
+/// summary.json, as the run that made them did: serde_json's float parsing is not exact to the
+/// last bit, so rows read back from outcome.json could differ from a local run's in the 17th
+/// digit.
+fn load_outcomes(plans: &[UnitPlan], fingerprints: &[String], recipe: &Recipe) -> Result<Vec<UnitOutcome>> {
+    let (mut units, mut missing, mut bad) = (Vec::new(), Vec::new(), Vec::new());
+    for (k, (p, fp)) in plans.iter().zip(fingerprints).enumerate() {
+        match read_outcome(p, fp) {
+            OutcomeState::Done(mut u) if u.failure.is_none() => {
+                match rows_from_summary(&p.dir.join("eval/summary.json"), recipe) {
+                    Ok(rows) => {
+                        u.rows = rows;
+                        units.push(*u);
+                    }
+                    Err(e) => bad.push(format!("{} (unit {k}): {e:#}", outcome_path(p).display())),
+                }
+            }
+            OutcomeState::Done(u) => units.push(*u),
+            OutcomeState::Missing => missing.push(k.to_string()),
+            OutcomeState::Bad(why) => bad.push(format!("{} (unit {k}): {why}", outcome_path(p).display())),
+        }
+    }
+    let mut parts = Vec::new();
+    if !missing.is_empty() {
+        parts.push(format!(
+            "{} of {} units have no outcome.json (indices {}; rerun their shards)",
+            missing.len(),
+            plans.len(),
+            missing.join(", ")
+        ));
+    }
+    if !bad.is_empty() {
+        parts.push(format!(
+            "{} outcome file(s) not from this plan (rerun their shards, which replace them):\n  {}",
+            bad.len(),
+            bad.join("\n  ")
+        ));
+    }
+    if !parts.is_empty() {
+        bail!("cannot merge: {}", parts.join("; "));
+    }
+    Ok(units)
+}
+
+fn print_unit_plan(a: &TransferArgs, plans: &[UnitPlan], families: &[Family], fingerprints: &[String]) -> Result<()> {
+    super::refuse_overwrite(a.json_out.as_slice(), a.force, "--json-out")?;
+    let units: Vec<serde_json::Value> = plans
+        .iter()
+        .zip(fingerprints)
+        .enumerate()
+        .map(|(k, (p, fp))| {
+            let status = match read_outcome(p, fp) {
+                OutcomeState::Done(u) if u.failure.is_some() => "failed".to_string(),
+                OutcomeState::Done(_) => "done".to_string(),
+                OutcomeState::Missing => "pending".to_string(),
+                OutcomeState::Bad(why) => format!("redo: {why}"),
+            };
+            serde_json::json!({
+                "index": k,
+                "family": families[p.family].name,
+                "unit": p.unit,
+                "role": p.role,
+                "dir": p.dir,
+                "fingerprint": fp,
+                "status": status,
+            })
+        })
+        .collect();
+    let plan = serde_json::json!({
+        "format": "bowden-transfer-plan/1",
+        "sharding": SHARDING.replace("runs", "units"),
+        "units": units,
+    });
+    let json = serde_json::to_string_pretty(&plan)?;
+    if let Some(j) = &a.json_out {
+        std::fs::write(j, format!("{json}\n")).with_context(|| format!("{}", j.display()))?;
+    }
+    if a.json {
+        println!("{json}");
+        return Ok(());
+    }
+    println!(
+        "bench transfer plan: {} units; sharding {}",
+        plans.len(),
+        SHARDING.replace("runs", "units")
+    );
+    println!(
+        "{:>5}  {:32}  {:8}  {:16}  status",
+        "index", "unit", "role", "fingerprint"
+    );
+    for (k, (u, p)) in units.iter().zip(plans).enumerate() {
+        println!(
+            "{k:>5}  {:32}  {:8}  {:16}  {}",
+            format!("{}/unit-{}", families[p.family].name, p.unit),
+            p.role.label(),
+            u["fingerprint"].as_str().unwrap_or(""),
+            u["status"].as_str().unwrap_or("")
+        );
+    }
+    Ok(())
+}
+
 fn transfer(a: TransferArgs) -> Result<()> {
     if a.jobs == 0 {
         bail!("--jobs must be at least 1");
@@ -2010,107 +2239,173 @@ fn transfer(a: TransferArgs) -> Result<()> {
             );
         }
     }
-    let exe = std::env::current_exe().context("locating the bowden executable")?;
-    if recipe.tune {
-        let o = std::process::Command::new(&exe)
-            .args(["tune", "--help"])
-            .stdin(Stdio::null())
-            .output()
-            .context("running bowden tune --help")?;
-        if !o.status.success() {
-            let err = String::from_utf8_lossy(&o.stderr);
-            if err.contains("unrecognized subcommand") {
-                bail!(
-                    "{}: recipe.tune = true but this bowden has no `tune` subcommand: set `recipe.tune = false`",
-                    a.config.display()
-                );
-            }
-            bail!("bowden tune --help failed ({}): {}", o.status, err.trim());
-        }
+    // What each unit's outcome depends on: checked by --merge, shown by --plan.
+    let fingerprints: Vec<String> = plans
+        .iter()
+        .map(|p| unit_fingerprint(&recipe, cfg.seed, &families[p.family], p))
+        .collect::<Result<_>>()?;
+    if a.plan {
+        return print_unit_plan(&a, &plans, &families, &fingerprints);
+    }
+    let selection = a
+        .shard
+        .as_deref()
+        .map(|s| s.parse::<Selection>().map_err(anyhow::Error::msg))
+        .transpose()?;
+    let selected: Vec<usize> = match selection {
+        Some(s) => s.indices(plans.len())?,
+        None => (0..plans.len()).collect(),
+    };
+    if let (Some(s), true) = (selection, selected.is_empty()) {
+        // A job array larger than the plan: this slot has nothing to do.
+        println!("bench transfer {s}: no units (the plan has {})", plans.len());
+        return Ok(());
     }
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let jobs = a.jobs.min(plans.len());
+    let jobs = a.jobs.min(selected.len());
     let threads = recipe.threads.unwrap_or((cores / jobs).max(1));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-    let ctx = Ctx {
-        exe,
-        project: project.clone(),
-        recipe: recipe.clone(),
-        seed: cfg.seed,
-        threads,
-        base_controller,
-        config_file: config_file.clone(),
-        mp: MultiProgress::new(),
-    };
-    eprintln!(
-        "bench transfer: {} unit(s), {} at once, into {}",
-        plans.len(),
-        jobs,
-        out.display()
-    );
-    let overall = ctx.mp.add(ProgressBar::new(plans.len() as u64));
-    overall.set_style(
-        ProgressStyle::with_template("units [{bar:30}] {pos}/{len}  {elapsed_precise}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
-    let next = AtomicUsize::new(0);
-    let outcomes: Mutex<Vec<Option<UnitOutcome>>> = Mutex::new(vec![None; plans.len()]);
-    std::thread::scope(|s| {
-        for _ in 0..jobs {
-            s.spawn(|| loop {
-                let i = next.fetch_add(1, Ordering::SeqCst);
-                let Some(plan) = plans.get(i) else { break };
-                let label = format!("{}/unit-{}", families[plan.family].name, plan.unit);
-                let bar = ctx.mp.insert_before(&overall, ProgressBar::new_spinner());
-                bar.set_style(
-                    ProgressStyle::with_template("{spinner} {prefix:32} {msg:28} {elapsed}")
-                        .unwrap_or_else(|_| ProgressStyle::default_spinner()),
-                );
-                bar.set_prefix(label.clone());
-                bar.enable_steady_tick(Duration::from_millis(250));
-                let o = run_unit(&ctx, &families, plan, &bar);
-                bar.finish_and_clear();
-                ctx.mp.remove(&bar);
-                ctx.mp.suspend(|| match &o.failure {
-                    None => eprintln!("{label}: done in {:.0} s", o.wall_seconds),
-                    Some(f) => eprintln!(
-                        "{label}: FAILED at step {} ({}){}{}{}",
-                        f.step,
-                        f.status,
-                        f.hint.as_ref().map(|h| format!(": {h}")).unwrap_or_default(),
-                        f.log
-                            .as_ref()
-                            .map(|l| format!("; log {}", l.display()))
-                            .unwrap_or_default(),
-                        if f.log_tail.is_empty() {
-                            String::new()
-                        } else {
-                            format!("\n    {}", f.log_tail.join("\n    "))
-                        }
-                    ),
-                });
-                if let Ok(mut v) = outcomes.lock() {
-                    v[i] = Some(o);
+    let units: Vec<UnitOutcome> = if a.merge {
+        load_outcomes(&plans, &fingerprints, &recipe)?
+    } else {
+        let exe = std::env::current_exe().context("locating the bowden executable")?;
+        if recipe.tune {
+            let o = std::process::Command::new(&exe)
+                .args(["tune", "--help"])
+                .stdin(Stdio::null())
+                .output()
+                .context("running bowden tune --help")?;
+            if !o.status.success() {
+                let err = String::from_utf8_lossy(&o.stderr);
+                if err.contains("unrecognized subcommand") {
+                    bail!(
+                        "{}: recipe.tune = true but this bowden has no `tune` subcommand: set `recipe.tune = false`",
+                        a.config.display()
+                    );
                 }
-                overall.inc(1);
-            });
+                bail!("bowden tune --help failed ({}): {}", o.status, err.trim());
+            }
         }
-    });
-    overall.finish_and_clear();
-    let units: Vec<UnitOutcome> = outcomes
-        .into_inner()
-        .map_err(|_| anyhow!("a unit's thread panicked"))?
-        .into_iter()
-        .flatten()
-        .collect();
-    if units.len() != plans.len() {
-        bail!(
-            "{} of {} units did not report (a thread panicked)",
-            plans.len() - units.len(),
-            plans.len()
+        let ctx = Ctx {
+            exe,
+            project: project.clone(),
+            recipe: recipe.clone(),
+            seed: cfg.seed,
+            threads,
+            base_controller,
+            config_file: config_file.clone(),
+            mp: MultiProgress::new(),
+        };
+        eprintln!(
+            "bench transfer: {} unit(s), {} at once, into {}",
+            selected.len(),
+            jobs,
+            out.display()
         );
-    }
+        let overall = ctx.mp.add(ProgressBar::new(selected.len() as u64));
+        overall.set_style(
+            ProgressStyle::with_template("units [{bar:30}] {pos}/{len}  {elapsed_precise}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> "),
+        );
+        let next = AtomicUsize::new(0);
+        let outcomes: Mutex<Vec<Option<UnitOutcome>>> = Mutex::new(vec![None; selected.len()]);
+        std::thread::scope(|s| {
+            for _ in 0..jobs {
+                s.spawn(|| loop {
+                    let i = next.fetch_add(1, Ordering::SeqCst);
+                    let Some(plan) = selected.get(i).map(|&k| &plans[k]) else {
+                        break;
+                    };
+                    let label = format!("{}/unit-{}", families[plan.family].name, plan.unit);
+                    let bar = ctx.mp.insert_before(&overall, ProgressBar::new_spinner());
+                    bar.set_style(
+                        ProgressStyle::with_template("{spinner} {prefix:32} {msg:28} {elapsed}")
+                            .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+                    );
+                    bar.set_prefix(label.clone());
+                    bar.enable_steady_tick(Duration::from_millis(250));
+                    let o = run_unit(&ctx, &families, plan, &bar);
+                    bar.finish_and_clear();
+                    ctx.mp.remove(&bar);
+                    ctx.mp.suspend(|| match &o.failure {
+                        None => eprintln!("{label}: done in {:.0} s", o.wall_seconds),
+                        Some(f) => eprintln!(
+                            "{label}: FAILED at step {} ({}){}{}{}",
+                            f.step,
+                            f.status,
+                            f.hint.as_ref().map(|h| format!(": {h}")).unwrap_or_default(),
+                            f.log
+                                .as_ref()
+                                .map(|l| format!("; log {}", l.display()))
+                                .unwrap_or_default(),
+                            if f.log_tail.is_empty() {
+                                String::new()
+                            } else {
+                                format!("\n    {}", f.log_tail.join("\n    "))
+                            }
+                        ),
+                    });
+                    if let Ok(mut v) = outcomes.lock() {
+                        v[i] = Some(o);
+                    }
+                    overall.inc(1);
+                });
+            }
+        });
+        overall.finish_and_clear();
+        let units: Vec<UnitOutcome> = outcomes
+            .into_inner()
+            .map_err(|_| anyhow!("a unit's thread panicked"))?
+            .into_iter()
+            .flatten()
+            .collect();
+        if units.len() != selected.len() {
+            bail!(
+                "{} of {} units did not report (a thread panicked)",
+                selected.len() - units.len(),
+                selected.len()
+            );
+        }
+        // Every unit's outcome beside its stamps, for --merge (a shard's units, or a local run's).
+        for (&k, u) in selected.iter().zip(&units) {
+            let file = OutcomeFile {
+                format: OUTCOME_FORMAT.into(),
+                fingerprint: fingerprints[k].clone(),
+                outcome: u.clone(),
+            };
+            std::fs::create_dir_all(&plans[k].dir).with_context(|| format!("creating {}", plans[k].dir.display()))?;
+            write_atomic(&outcome_path(&plans[k]), &serde_json::to_string_pretty(&file)?)?;
+        }
+        if let Some(s) = selection {
+            for (&k, u) in selected.iter().zip(&units) {
+                println!(
+                    "unit {k} {}/unit-{}: {}; {}",
+                    u.family,
+                    u.unit,
+                    match &u.failure {
+                        None => "ok".to_string(),
+                        Some(f) => format!("FAILED at step {}", f.step),
+                    },
+                    outcome_path(&plans[k]).display()
+                );
+            }
+            let failed = units.iter().filter(|u| u.failure.is_some()).count();
+            if failed > 0 {
+                bail!(
+                    "bench transfer {s}: {failed} of {} unit(s) failed; their outcome files record it",
+                    units.len()
+                );
+            }
+            println!(
+                "bench transfer {s}: {} of {} units done; when every shard has finished: bench transfer ... --merge",
+                units.len(),
+                plans.len()
+            );
+            return Ok(());
+        }
+        units
+    };
     let held: Vec<&UnitOutcome> = units.iter().filter(|u| u.role == Role::HeldOut).collect();
     let summary = summarise(&held, &families, &recipe);
     let mut rep = Report {
@@ -2131,6 +2426,7 @@ fn transfer(a: TransferArgs) -> Result<()> {
         never_worse: never_worse(&held, &recipe),
         timing: timing(&units),
         units: Vec::new(),
+        merged: a.merge,
         wall_seconds: 0.0,
     };
     let (plotted, which): (Vec<&UnitOutcome>, &str) = if held.iter().any(|u| !u.rows.is_empty()) {
@@ -2153,8 +2449,12 @@ fn transfer(a: TransferArgs) -> Result<()> {
                 .map(|f| format!("{}/unit-{} at {}", u.family, u.unit, f.step))
         })
         .collect();
+    rep.wall_seconds = if a.merge {
+        units.iter().map(|u| u.wall_seconds).sum()
+    } else {
+        t_start.elapsed().as_secs_f64()
+    };
     rep.units = units;
-    rep.wall_seconds = t_start.elapsed().as_secs_f64();
     let md = markdown(&rep);
     write_atomic(&out.join("transfer.md"), &md)?;
     write_atomic(&out.join("transfer.json"), &serde_json::to_string_pretty(&rep)?)?;

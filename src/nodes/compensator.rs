@@ -9,8 +9,11 @@
 //! (docs/architecture.md, "Vision feedback"). In lockstep the estimate of tick k is read at
 //! tick k + 1 (the estimator runs after the compensator within a tick), deterministically.
 
-use bowden_compensator::{ApplyTo, Compensator, ControllerConfig, Feedback, Mode, StepOutput};
-use bowden_interfaces::{services, JointCommand, JointEstimate, JointTarget, MAX_JOINTS};
+use bowden_compensator::{
+    ApplyTo, Compensator, ControllerConfig, Dither, Feedback, LoadOptions, Loaded, LoaderSettings, Mode, ModelLoader,
+    StepOutput,
+};
+use bowden_interfaces::{services, JointCommand, JointEstimate, JointTarget, ModelUpdate, MAX_JOINTS};
 use bowden_runtime::ports::{Input, Output};
 use bowden_runtime::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
 use serde::Deserialize;
@@ -34,8 +37,25 @@ struct FeedbackPath {
     apply: ApplyTo,
 }
 
+/// The hot-swap path of the node: present when the pipeline has a stage announcing
+/// `ModelUpdate`s (an `adapt` node).
+struct SwapPath {
+    updates: Input<ModelUpdate>,
+    loader: ModelLoader,
+    /// Updates handed to the loader and not answered yet.
+    pending: u32,
+    swapped: u64,
+    refused: u64,
+}
+
+/// Lockstep waits this long for the loader's answer before counting a fault.
+const LOCKSTEP_LOAD_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(120);
+
 struct CompensatorStage {
     comp: Compensator,
+    swap: Option<SwapPath>,
+    /// `[dither]`: an offset added to the command, for online adaptation's data.
+    dither: Option<Dither>,
     input: Input<JointTarget>,
     out: Output<JointCommand>,
     step_out: StepOutput,
@@ -82,8 +102,42 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
     } else {
         None
     };
+    let announced = env
+        .pipeline
+        .stages
+        .iter()
+        .any(|s| s.outputs.iter().any(|o| o == services::MODEL_UPDATE));
+    let swap = if announced && cfg.mode != Mode::Uncalibrated {
+        let (fwd_l, inv_l) = comp.seq_lens();
+        let settings = LoaderSettings {
+            load: LoadOptions {
+                check_windows: cfg.load_check.windows,
+                tolerance_deg: cfg.load_check.tolerance_deg,
+                ..LoadOptions::default()
+            },
+            fwd_l,
+            inv_l,
+            joints: comp.joints(),
+            evaluator: cfg.evaluator,
+            who: env.spec.name.clone(),
+            verbose: true,
+        };
+        Some(SwapPath {
+            updates: env.ports.input(services::MODEL_UPDATE, 8)?,
+            loader: ModelLoader::spawn(settings).map_err(|e| env.error(format!("model loader thread: {e}")))?,
+            pending: 0,
+            swapped: 0,
+            refused: 0,
+        })
+    } else {
+        None
+    };
+    let dither = (cfg.dither.enabled && cfg.mode != Mode::Uncalibrated)
+        .then(|| Dither::new(&cfg.dither, &robot, cfg.history.step_deg));
     Ok(Box::new(CompensatorStage {
         comp,
+        swap,
+        dither,
         input: env.ports.input(services::JOINT_TARGET, 4)?,
         out: env.ports.output(services::JOINT_COMMAND)?,
         step_out: StepOutput::default(),
@@ -94,6 +148,55 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
 }
 
 impl CompensatorStage {
+    /// At the cycle boundary (after the command went out): hands new announcements to the
+    /// loader and swaps in whatever it has ready. Real time: never waits. Lockstep: waits for
+    /// the loader's answer, so the swap happens at the tick after the announcement whatever
+    /// the machine's speed. Allocation-free on this thread.
+    fn swap_models(&mut self, cx: &StepCx) {
+        let Some(sp) = self.swap.as_mut() else { return };
+        loop {
+            // Announcements of earlier ticks only: in lockstep `adapt` is not ordered before us.
+            let u = if cx.lockstep {
+                sp.updates.next_upto(cx.tick.saturating_sub(1))
+            } else {
+                sp.updates.recv()
+            };
+            let Some(u) = u else { break };
+            if sp.loader.request(&u) {
+                sp.pending += 1;
+            } else {
+                sp.refused += 1;
+            }
+        }
+        while sp.pending > 0 {
+            let answer = if cx.lockstep {
+                sp.loader.take_blocking(LOCKSTEP_LOAD_TIMEOUT)
+            } else {
+                sp.loader.try_take()
+            };
+            let Some(answer) = answer else {
+                if cx.lockstep {
+                    // The loader did not answer in time: count it and go on with the models in use.
+                    sp.pending = 0;
+                    sp.refused += 1;
+                }
+                break;
+            };
+            sp.pending -= 1;
+            match answer {
+                Loaded::Ready(mut next) => {
+                    match self.comp.swap_models(&mut next) {
+                        Ok(()) => sp.swapped += 1,
+                        Err(_) => sp.refused += 1,
+                    }
+                    // `next` now holds the replaced models (or the refused ones): freed off the cycle.
+                    sp.loader.retire(next);
+                }
+                Loaded::Refused { .. } => sp.refused += 1,
+            }
+        }
+    }
+
     /// One step with the vision feedback: reads the estimates that arrived, updates the
     /// correction and applies it. `Err` = a rejected target (counted by the compensator).
     fn step_with_feedback(&mut self, t: &JointTarget, n: usize, cx: &StepCx) -> Result<(), ()> {
@@ -123,6 +226,11 @@ impl CompensatorStage {
         }
         let mut u = [0.0f64; MAX_JOINTS];
         u[..n].copy_from_slice(fp.fb.update(now));
+        if let Some(d) = self.dither.as_mut() {
+            for (v, o) in u[..n].iter_mut().zip(d.update(q)) {
+                *v += o;
+            }
+        }
         let r = if u[..n].iter().all(|&v| v == 0.0) {
             // No correction (yet, or markers lost): the feed-forward exactly as without feedback.
             self.comp.step(q, &mut self.step_out)
@@ -161,6 +269,12 @@ impl Stage for CompensatorStage {
         // so the actuator's watchdog sees the gap.
         let ok = if self.feedback.is_some() {
             self.step_with_feedback(&t, n, cx).is_ok()
+        } else if let Some(d) = self.dither.as_mut() {
+            let q = &t.q_desired_deg[..n];
+            let mut off = [0.0f64; MAX_JOINTS];
+            let o = d.update(q);
+            off[..o.len()].copy_from_slice(o);
+            self.comp.step_with_correction(q, &off[..n], &mut self.step_out).is_ok()
         } else {
             self.comp.step(&t.q_desired_deg[..n], &mut self.step_out).is_ok()
         };
@@ -173,6 +287,10 @@ impl Stage for CompensatorStage {
             cmd.compute_ns = 0;
         }
         self.out.publish(t.header.tick, t.header.t_origin_ns, cmd)?;
+        self.swap_models(cx);
+        // The next window prefix (after a history step or a swap) now, off the target → command
+        // path of the next cycle (results are the same either way).
+        self.comp.prepare();
         Ok(StepReport::published(t.header.t_origin_ns))
     }
 
@@ -182,7 +300,9 @@ impl Stage for CompensatorStage {
             // Unusable estimates (invalid, partial, NaN, outliers) count as rejected samples;
             // marker-loss fallbacks as faults, and the node is degraded while markers are lost.
             rejected: self.comp.rejected_inputs() + self.bad_size + fb.map_or(0, |(c, _)| c.rejected()),
-            faults: fb.map_or(0, |(c, _)| c.loss_episodes),
+            // A refused model update (bad file, failed load check, loader timeout) is a fault:
+            // the models in use stay.
+            faults: fb.map_or(0, |(c, _)| c.loss_episodes) + self.swap.as_ref().map_or(0, |s| s.refused),
             degraded: fb.is_some_and(|(_, lost)| lost),
             ..Default::default()
         }
@@ -194,6 +314,20 @@ impl Stage for CompensatorStage {
             self.comp.mode(),
             self.comp.rejected_inputs() + self.bad_size
         )];
+        if let Some(d) = &self.dither {
+            let (draws, scaled, max_tip) = d.counts();
+            v.push(format!(
+                "dither: {draws} offsets drawn, {scaled} scaled down to the tip bound, largest tip displacement {max_tip:.3} mm"
+            ));
+        }
+        if let Some(sp) = &self.swap {
+            v.push(format!(
+                "compensator: model generation {} in use; {} swaps, {} updates refused",
+                self.comp.generation(),
+                sp.swapped,
+                sp.refused
+            ));
+        }
         if let Some(f) = &self.feedback {
             v.push(f.fb.summary());
         } else if self.feedback_idle {

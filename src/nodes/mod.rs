@@ -3,6 +3,7 @@
 //! [`Stage`] from the stage's `[node.params]`, reads its inputs and publishes its outputs.
 
 mod actuator;
+mod adapt;
 mod camera;
 mod compensator;
 mod estimator;
@@ -26,6 +27,7 @@ pub fn factory(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         "plant" => plant::build(env),
         "camera" => camera::build(env),
         "estimator" => estimator::build(env),
+        "adapt" => adapt::build(env),
         other => Err(env.error(format!("no built-in node of kind `{other}`"))),
     }
 }

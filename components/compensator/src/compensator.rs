@@ -4,6 +4,8 @@ use crate::config::{ConfigError, ControllerConfig, EvaluatorChoice, Mode, Safety
 use crate::contract::{Direction, Support, MAX_JOINTS};
 use crate::history::History;
 use crate::model::{Evaluator, LoadOptions, Model, ModelError};
+use crate::net::IncrementalNet;
+use crate::prefix::{PrefixSync, PrefixWorker, PrefixWorkerOptions, FWD, INV};
 use crate::refine::{newton_refine, paper_refine, NewtonParams, PaperParams, RefineResult, StopReason, WindowModel};
 use bowden_kinematics::{Robot, N_JOINTS};
 use std::time::Instant;
@@ -75,6 +77,11 @@ pub struct StepOutput {
     pub upper_mask: u32,
     /// Likewise at a lower bound.
     pub lower_mask: u32,
+    /// History entries the window prefixes this step ran on lag behind the history (the
+    /// larger of the two models). Always 0 unless a prefix worker in
+    /// [`PrefixSync::Newest`] mode had not finished the newest one
+    /// ([`Compensator::start_prefix_worker`]).
+    pub prefix_lag: u32,
 }
 
 /// The candidate a step sent (`[safety] never_worse`).
@@ -124,6 +131,7 @@ impl Default for StepOutput {
             correction_deg: [0.0; MAX_JOINTS],
             upper_mask: 0,
             lower_mask: 0,
+            prefix_lag: 0,
         }
     }
 }
@@ -175,6 +183,30 @@ pub struct Compensator {
     safety_counts: SafetyCounts,
     fwd_path: Option<String>,
     inv_path: Option<String>,
+    /// Generation of the models in use: 0 = those loaded at start, then one per swap.
+    generation: u64,
+    evaluator_choice: EvaluatorChoice,
+    /// Window prefixes computed off the cycle ([`Self::start_prefix_worker`]).
+    worker: Option<PrefixWorker>,
+}
+
+/// Models made ready off the cycle (loaded, checked, evaluators sized) for
+/// [`Compensator::swap_models`]. After the swap it holds the models that were replaced, to be
+/// dropped off the cycle too.
+pub struct PreparedModels {
+    pub generation: u64,
+    pub fwd: Option<Evaluator>,
+    pub inv: Option<Evaluator>,
+}
+
+impl std::fmt::Debug for PreparedModels {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PreparedModels")
+            .field("generation", &self.generation)
+            .field("fwd", &self.fwd.is_some())
+            .field("inv", &self.inv.is_some())
+            .finish()
+    }
 }
 
 impl std::fmt::Debug for Compensator {
@@ -295,6 +327,9 @@ impl Compensator {
             safety: cfg.safety.clone(),
             support,
             safety_counts: SafetyCounts::default(),
+            generation: 0,
+            evaluator_choice: cfg.evaluator,
+            worker: None,
         };
         c.set_mode(cfg.mode)?;
         Ok(c)
@@ -410,11 +445,159 @@ impl Compensator {
         }
     }
 
+    /// Generation of the models in use (0 = those loaded at start; each swap sets its own).
+    pub fn generation(&self) -> u64 {
+        self.generation
+    }
+
+    /// Sequence lengths (forward, inverse) a swapped-in model must have: the histories are
+    /// sized for them. 0 where the direction is not loaded.
+    pub fn seq_lens(&self) -> (usize, usize) {
+        (
+            self.fwd.as_ref().map_or(0, |_| self.fwd_l),
+            self.inv.as_ref().map_or(0, |_| self.inv_l),
+        )
+    }
+
+    /// How an accepted model is to be evaluated (the config's `evaluator`).
+    pub fn evaluator_for(&self, m: &Model) -> Evaluator {
+        match self.evaluator_choice {
+            EvaluatorChoice::Auto => m.evaluator(),
+            EvaluatorChoice::Tract => Evaluator::Tract(Box::new(m.tract_evaluator())),
+        }
+    }
+
+    /// Exchanges the models in use with `next`'s at a cycle boundary: the evaluators move by
+    /// value (no allocation, no deallocation: `next` then holds the replaced ones, for the
+    /// caller to drop off the cycle). A direction `next` leaves `None` stays as it is. The
+    /// histories carry over; the swapped models' window prefixes are recomputed by the next
+    /// step (or [`Self::prepare`]). Refused, and nothing changed, when a model's sequence length
+    /// or joints differ from those the histories were sized for, or a direction is not loaded.
+    pub fn swap_models(&mut self, next: &mut PreparedModels) -> Result<(), CompensatorError> {
+        let check = |e: &Option<Evaluator>, cur: &Option<Evaluator>, l: usize, dir: &str| {
+            let Some(e) = e else { return Ok(()) };
+            if cur.is_none() {
+                return Err(format!("no {dir} model is loaded to be replaced"));
+            }
+            if e.seq_len() != l || e.joints() != self.j {
+                return Err(format!(
+                    "the new {dir} model has L = {} and {} joints, the running one L = {l} and {}",
+                    e.seq_len(),
+                    e.joints(),
+                    self.j
+                ));
+            }
+            Ok(())
+        };
+        check(&next.fwd, &self.fwd, self.fwd_l, "forward")
+            .and_then(|_| check(&next.inv, &self.inv, self.inv_l, "inverse"))
+            .map_err(|what| CompensatorError::Mismatch {
+                path: format!("model generation {}", next.generation),
+                what,
+            })?;
+        if next.fwd.is_some() {
+            std::mem::swap(&mut self.fwd, &mut next.fwd);
+            self.fwd_prefix = Prefix::Full;
+            self.worker_swapped(FWD);
+        }
+        if next.inv.is_some() {
+            std::mem::swap(&mut self.inv, &mut next.inv);
+            self.inv_prefix = Prefix::Full;
+            self.worker_swapped(INV);
+        }
+        std::mem::swap(&mut self.generation, &mut next.generation);
+        Ok(())
+    }
+
+    /// Tells the prefix worker that model `m` was swapped: it rebuilds its evaluators of the
+    /// new model off the cycle. A swapped-in model without an incremental evaluator leaves
+    /// the worker and gets its prefixes in the step, as without a worker.
+    fn worker_swapped(&mut self, m: usize) {
+        let Some(w) = self.worker.as_mut() else { return };
+        let e = if m == FWD { &self.fwd } else { &self.inv };
+        match e {
+            Some(Evaluator::Incremental(n)) => w.swapped(m, n.net_arc()),
+            _ => w.release(m),
+        }
+    }
+
+    /// Moves the window-prefix computation of every model with an incremental evaluator to a
+    /// worker thread ([`crate::prefix`]): after a history step the cycle only posts the new
+    /// history, and a later step adopts the finished prefix by exchanging two evaluators.
+    /// `Wait` keeps the commands bit-identical to computing the prefix in the step (lockstep);
+    /// `Newest` never blocks and may run a few steps on the previous window
+    /// ([`StepOutput::prefix_lag`]). Allocates two more evaluators per model and the thread:
+    /// call it at start-up, not on the cycle. Returns false (and starts nothing) when no model
+    /// has an incremental evaluator. Replaces a worker started before.
+    pub fn start_prefix_worker(&mut self, opts: PrefixWorkerOptions) -> std::io::Result<bool> {
+        self.worker = None;
+        // The active evaluators start from a complete prefix of the current history.
+        self.sync_prefixes_in_step();
+        let j = self.j;
+        fn model(e: &Option<Evaluator>, l: usize, j: usize) -> Option<(&IncrementalNet, usize)> {
+            match e {
+                Some(Evaluator::Incremental(n)) => Some((&**n, (l - 1) * j)),
+                _ => None,
+            }
+        }
+        let models = [model(&self.fwd, self.fwd_l, j), model(&self.inv, self.inv_l, j)];
+        if models.iter().all(|m| m.is_none()) {
+            return Ok(false);
+        }
+        self.worker = Some(PrefixWorker::spawn(models, self.history.appended_total(), opts)?);
+        Ok(true)
+    }
+
+    /// Stops the prefix worker (prefixes are computed in the step again, or in
+    /// [`Self::prepare`]).
+    pub fn stop_prefix_worker(&mut self) {
+        if self.worker.take().is_some() {
+            // The active evaluators may lag: recompute in full at the next step.
+            self.fwd_prefix = Prefix::Full;
+            self.inv_prefix = Prefix::Full;
+        }
+    }
+
+    /// The prefix worker's mode, if one runs.
+    pub fn prefix_worker(&self) -> Option<PrefixSync> {
+        self.worker.as_ref().map(|w| w.sync_mode())
+    }
+
+    /// Blocks until the prefix worker finished the prefixes of the current history and
+    /// adopts them, so the next step runs on them (tests and checks; never on the cycle).
+    /// Without a worker, computes them now, like [`Self::prepare`].
+    pub fn wait_prefixes(&mut self) {
+        if let Some(w) = self.worker.as_mut() {
+            if let Some(Evaluator::Incremental(n)) = self.fwd.as_mut() {
+                w.wait_idle(FWD, n, self.history.sent_tail(self.fwd_l - 1));
+            }
+            if let Some(Evaluator::Incremental(n)) = self.inv.as_mut() {
+                w.wait_idle(INV, n, self.history.desired_tail(self.inv_l - 1));
+            }
+        }
+        self.sync_prefixes_in_step();
+    }
+
     /// Forgets the histories (back to zero padding) and the last command.
     pub fn reset(&mut self) {
         self.history.reset();
         self.fwd_prefix = Prefix::Full;
         self.inv_prefix = Prefix::Full;
+        if let Some(w) = self.worker.as_mut() {
+            // The zero-padding prefix now (reset is not a cycle), in a new epoch whose keys
+            // no result of the old history matches. Allocation-free.
+            if w.handles(FWD) {
+                if let Some(Evaluator::Incremental(n)) = self.fwd.as_mut() {
+                    n.set_history(self.history.sent_tail(self.fwd_l - 1));
+                }
+            }
+            if w.handles(INV) {
+                if let Some(Evaluator::Incremental(n)) = self.inv.as_mut() {
+                    n.set_history(self.history.desired_tail(self.inv_l - 1));
+                }
+            }
+            w.restarted(self.history.appended_total());
+        }
         self.has_last = false;
         self.last_sent = [0.0; MAX_JOINTS];
         self.safety_counts = SafetyCounts::default();
@@ -424,18 +607,61 @@ impl Compensator {
     /// (after a history entry was appended). A runtime can call it right after publishing
     /// the command, which takes that work off the target → command path; calling it is
     /// optional and never changes results. Allocation-free.
+    ///
+    /// With a prefix worker it hands the new history to the worker instead (a copy, and in
+    /// `Newest` mode a `try_lock` that is retried at the next step if it fails), so the worker
+    /// starts right after the command went out.
     pub fn prepare(&mut self) {
-        self.sync_prefixes();
+        if let Some(w) = self.worker.as_mut() {
+            if w.handles(FWD) {
+                w.post(FWD, self.history.sent_tail(self.fwd_l - 1));
+            }
+            if w.handles(INV) {
+                w.post(INV, self.history.desired_tail(self.inv_l - 1));
+            }
+        }
+        self.sync_prefixes_in_step();
     }
 
-    /// True when the next step will first recompute (part of) a model's window prefix.
+    /// True when the next step will first recompute (part of) a model's window prefix in the
+    /// step (models handed to a prefix worker never are, after start-up).
     pub fn prefix_pending(&self) -> bool {
-        (self.fwd.is_some() && self.fwd_prefix != Prefix::Valid)
-            || (self.inv.is_some() && self.inv_prefix != Prefix::Valid)
+        let handled = |m| self.worker.as_ref().is_some_and(|w| w.handles(m));
+        (self.fwd.is_some() && !handled(FWD) && self.fwd_prefix != Prefix::Valid)
+            || (self.inv.is_some() && !handled(INV) && self.inv_prefix != Prefix::Valid)
     }
 
-    fn sync_prefixes(&mut self) {
-        if let Some(f) = &mut self.fwd {
+    /// Brings every model's prefix up to date for a step: through the worker where one
+    /// handles the model, in place otherwise. Returns the prefix lag (see
+    /// [`StepOutput::prefix_lag`]).
+    fn sync_prefixes(&mut self) -> u32 {
+        let mut lag = 0;
+        if let Some(w) = self.worker.as_mut() {
+            // Both requests go out before either result is waited for.
+            let fh = self.history.sent_tail(self.fwd_l - 1);
+            let ih = self.history.desired_tail(self.inv_l - 1);
+            if w.handles(FWD) {
+                w.post(FWD, fh);
+            }
+            if w.handles(INV) {
+                w.post(INV, ih);
+            }
+            if let (true, Some(Evaluator::Incremental(n))) = (w.handles(FWD), self.fwd.as_mut()) {
+                lag = lag.max(w.sync(FWD, n, fh));
+            }
+            if let (true, Some(Evaluator::Incremental(n))) = (w.handles(INV), self.inv.as_mut()) {
+                lag = lag.max(w.sync(INV, n, ih));
+            }
+        }
+        self.sync_prefixes_in_step();
+        lag
+    }
+
+    /// The prefixes of the models no worker handles, in place.
+    fn sync_prefixes_in_step(&mut self) {
+        let handled = |m| self.worker.as_ref().is_some_and(|w| w.handles(m));
+        let (hf, hi) = (handled(FWD), handled(INV));
+        if let (false, Some(f)) = (hf, &mut self.fwd) {
             let h = self.history.sent_tail(self.fwd_l - 1);
             match self.fwd_prefix {
                 Prefix::Valid => {}
@@ -444,7 +670,7 @@ impl Compensator {
             }
             self.fwd_prefix = Prefix::Valid;
         }
-        if let Some(i) = &mut self.inv {
+        if let (false, Some(i)) = (hi, &mut self.inv) {
             let h = self.history.desired_tail(self.inv_l - 1);
             match self.inv_prefix {
                 Prefix::Valid => {}
@@ -505,13 +731,14 @@ impl Compensator {
             out.correction_deg = [0.0; MAX_JOINTS];
             out.upper_mask = 0;
             out.lower_mask = 0;
+            out.prefix_lag = 0;
             out.elapsed_ns = t0.elapsed().as_nanos() as u64;
             return Err(e);
         }
         let q_des = &q_desired_deg[..j];
         out.q_desired_deg = [0.0; MAX_JOINTS];
         out.q_desired_deg[..j].copy_from_slice(q_des);
-        self.sync_prefixes();
+        out.prefix_lag = self.sync_prefixes();
 
         let budget = (self.budget_ns > 0).then_some((t0, self.budget_ns));
         let mut out_of_time = move || budget.is_some_and(|(s, b)| s.elapsed().as_nanos() as u64 >= b);
@@ -733,6 +960,9 @@ impl Compensator {
         };
         mark(&mut self.fwd_prefix);
         mark(&mut self.inv_prefix);
+        if let (Some(w), true) = (self.worker.as_mut(), appended > 0) {
+            w.advanced(self.history.appended_total());
+        }
         self.last_sent = cmd;
         self.has_last = true;
 

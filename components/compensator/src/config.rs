@@ -1,5 +1,6 @@
 //! `configs/controller.toml`: every setting of the compensator.
 
+use crate::dither::DitherConfig;
 use crate::feedback::FeedbackConfig;
 use crate::history::HistoryRule;
 use crate::refine::{NewtonParams, PaperParams};
@@ -236,6 +237,9 @@ pub struct ControllerConfig {
     /// feed-forward, exactly as without the table).
     #[serde(default)]
     pub feedback: FeedbackConfig,
+    /// Excitation while working (for online adaptation); absent = off.
+    #[serde(default)]
+    pub dither: DitherConfig,
     /// Where the config came from (relative model paths resolve against it).
     #[serde(skip)]
     pub source: Option<PathBuf>,
@@ -385,6 +389,9 @@ impl ControllerConfig {
             );
         }
         if let Err((field, value, reason)) = self.feedback.check() {
+            return bad(field, value, reason);
+        }
+        if let Err((field, value, reason)) = self.dither.check() {
             return bad(field, value, reason);
         }
         let lc = &self.load_check;

@@ -16,6 +16,8 @@
 //! - [`Feedback`]: the vision feedback (`[feedback]`): a bounded, leaky, anti-windup
 //!   integrator of the error between the desired angles when a frame was taken and the
 //!   estimator's measurement, with marker-loss fallback to the feed-forward alone.
+//! - [`swap`]: hot model swap, models loaded and checked on a loader thread, exchanged by
+//!   value at a cycle boundary.
 //! - [`offline`] and [`bench`]: the `bowden compensate` and `bowden bench compensate` engines.
 
 // Numeric kernels index several parallel arrays with one loop variable; iterator chains over
@@ -26,18 +28,24 @@ pub mod bench;
 pub mod compensator;
 pub mod config;
 pub mod contract;
+pub mod dither;
 pub mod feedback;
 pub mod history;
 pub mod model;
 pub mod net;
 pub mod offline;
+pub mod prefix;
 mod recognise;
 pub mod refine;
+pub mod swap;
 
-pub use compensator::{Chosen, Compensator, CompensatorError, SafetyCounts, StepError, StepOutput};
+pub use compensator::{Chosen, Compensator, CompensatorError, PreparedModels, SafetyCounts, StepError, StepOutput};
 pub use config::{ConfigError, ControllerConfig, EvaluatorChoice, Mode, SafetyConfig};
+pub use dither::{Dither, DitherConfig};
 pub use feedback::{ApplyTo, Feedback, FeedbackConfig, FeedbackCounts, Observation};
 pub use history::{History, HistoryRule};
 pub use model::{Evaluator, LoadOptions, Model, ModelError, TractEvaluator};
 pub use net::{IncrementalNet, Net, NetSummary};
+pub use prefix::{PrefixSync, PrefixWorkerOptions};
 pub use refine::{newton_refine, paper_refine, NewtonParams, PaperParams, RefineResult, StopReason, WindowModel};
+pub use swap::{Loaded, LoaderSettings, ModelLoader};

@@ -529,6 +529,10 @@ impl IncrementalNet {
     pub fn net(&self) -> &Net {
         &self.net
     }
+    /// The shared network (an evaluator of the same model is `IncrementalNet::new` of it).
+    pub fn net_arc(&self) -> &Arc<Net> {
+        &self.net
+    }
 
     /// Offset of column `t` of sequence node `n` in its buffer.
     #[inline]

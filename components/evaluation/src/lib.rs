@@ -94,6 +94,39 @@ pub fn pipeline_for_controller(template: &Path, controller: &str, work_dir: &Pat
 /// Writes a copy of the pipeline file `template` to `out` with node parameters replaced:
 /// each `(node name, parameter, value)` sets `[node.params] parameter = value` of that node.
 /// Relative file paths of the template are made absolute so the copy names the same files.
+/// Appends a `[[node]]` (`name`, `kind`, `params`) to a pipeline file written by
+/// [`pipeline_variant`] (`bowden evaluate --adapt` adds the `adapt` node this way).
+pub fn pipeline_add_node(file: &Path, name: &str, kind: &str, params: toml::Table) -> Result<(), EvalError> {
+    let text = std::fs::read_to_string(file).map_err(|source| EvalError::Io {
+        path: file.to_path_buf(),
+        source,
+    })?;
+    let mut table: toml::Table = toml::from_str(&text).map_err(|e| EvalError::Config {
+        path: file.to_path_buf(),
+        message: e.to_string().replace('\n', " "),
+    })?;
+    let mut node = toml::Table::new();
+    node.insert("name".into(), toml::Value::String(name.into()));
+    if kind != name {
+        node.insert("kind".into(), toml::Value::String(kind.into()));
+    }
+    node.insert("params".into(), toml::Value::Table(params));
+    match table.get_mut("node").and_then(|n| n.as_array_mut()) {
+        Some(nodes) => nodes.push(toml::Value::Table(node)),
+        None => {
+            table.insert("node".into(), toml::Value::Array(vec![toml::Value::Table(node)]));
+        }
+    }
+    let text = toml::to_string(&table).map_err(|e| EvalError::Config {
+        path: file.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    std::fs::write(file, text).map_err(|source| EvalError::Io {
+        path: file.to_path_buf(),
+        source,
+    })
+}
+
 pub fn pipeline_variant(template: &Path, set: &[(&str, &str, toml::Value)], out: &Path) -> Result<PathBuf, EvalError> {
     let text = std::fs::read_to_string(template).map_err(|source| EvalError::Io {
         path: template.to_path_buf(),

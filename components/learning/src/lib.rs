@@ -31,5 +31,5 @@ pub use dataset::{AngleUnit, Dataset, DatasetError, ImportOptions, Manifest};
 pub use onnx::{ModelFile, OnnxError, TractModel};
 pub use report::{train_to_files, LearnError, TrainReport};
 pub use support::DataSupport;
-pub use train::{train, Backend, TrainConfig, TrainError, TrainOutcome};
+pub use train::{fine_tune, mean_residual_deg, rmse_deg, train, Backend, TrainConfig, TrainError, TrainOutcome};
 pub use windows::{PhySource, SplitConfig, WindowSet};

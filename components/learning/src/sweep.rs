@@ -3,8 +3,16 @@
 //! configuration per thread), each finished run saved as its own JSON so an interrupted
 //! sweep resumes where it stopped; then mean ± SD of the best validation RMSE per
 //! (architecture, TCN block, L, direction) as Markdown, JSON and SVG.
+//!
+//! A sweep also runs in pieces on a cluster scheduler (Slurm job array, Kubernetes Indexed
+//! Job) without bowden managing the cluster: [`plan_sweep`] numbers the runs and fingerprints
+//! them, [`execute_runs`] does one [`Selection`] of them (a shard `I/N`: the indices ≡ I mod N,
+//! or one run) into a shared `runs/` directory, each result written atomically, and
+//! [`merge_sweep`] checks every run file against the plan and writes the same sweep.md,
+//! sweep.json and sweep.svg as a local run. [`run_sweep`] is the three at once.
 
 use std::collections::BTreeMap;
+use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
@@ -15,8 +23,8 @@ use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::arch::{Arch, Direction, ModelSpec, TcnBlock};
-use crate::dataset::Dataset;
-use crate::report::{write_json, LearnError};
+use crate::dataset::{fnv1a64_hex, Dataset};
+use crate::report::LearnError;
 use crate::train::{train, TrainConfig};
 use crate::windows::{overall_rmse, PhySource, SplitConfig, WindowSet};
 
@@ -33,7 +41,10 @@ pub struct SweepConfig {
     pub early_stop: Option<usize>,
     pub split: SplitConfig,
     pub phy_source: PhySource,
-    /// Configurations trained at once.
+    /// Configurations trained at once. Not recorded in sweep.json nor in the fingerprints: no
+    /// result depends on it, and a sweep run as shards with other `--jobs` must merge into the
+    /// same bytes as a local one.
+    #[serde(skip)]
     pub jobs: usize,
 }
 
@@ -56,12 +67,17 @@ impl RunKey {
         }
     }
 
-    fn file_name(&self) -> String {
+    /// `tcn-relu-linear_forward_L80_s2`: the run file's name without `.json`.
+    pub fn name(&self) -> String {
         let model = match self.tcn_block {
             Some(b) => format!("{}-{}", self.arch, b),
             None => self.arch.to_string(),
         };
-        format!("{model}_{}_L{}_s{}.json", self.direction, self.seq_len, self.seed)
+        format!("{model}_{}_L{}_s{}", self.direction, self.seq_len, self.seed)
+    }
+
+    pub fn file_name(&self) -> String {
+        format!("{}.json", self.name())
     }
 }
 
@@ -69,12 +85,16 @@ impl RunKey {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RunResult {
     pub key: RunKey,
-    /// What makes the result reusable: same data, epochs, stopping, split and source.
+    /// What makes the result reusable: same code, data, epochs, stopping, split and source;
+    /// [`RunResult::fingerprint`] hashes them with the key.
+    pub code_version: String,
     pub data_fnv1a64: String,
     pub epochs: usize,
     pub early_stop: Option<usize>,
     pub split: SplitConfig,
     pub phy_source: PhySource,
+    /// FNV-1a 64 of the above and the key ([`run_fingerprint`]), hex.
+    pub fingerprint: String,
     pub params: usize,
     pub best_epoch: usize,
     pub epochs_run: usize,
@@ -82,6 +102,8 @@ pub struct RunResult {
     pub best_val_rmse_per_joint_deg: Vec<f64>,
     pub identity_val_rmse_deg: f64,
     pub val_rmse_curve_deg: Vec<f64>,
+    /// Wall time of the training; only in the run file (never in sweep.json, which must not
+    /// depend on where and when the runs were made).
     pub seconds: f64,
 }
 
@@ -108,11 +130,189 @@ pub struct SweepSummary {
     pub config: SweepConfig,
     pub data: String,
     pub runs: usize,
+    /// Runs taken from an earlier sweep's files by this invocation: printed, never written to
+    /// sweep.json (a resumed, sharded or merged sweep writes the same bytes as a fresh one).
+    #[serde(skip)]
     pub reused: usize,
     pub groups: Vec<GroupStats>,
     /// Per direction, the models ordered by mean RMSE at each L (best first).
     pub ranking: BTreeMap<String, BTreeMap<usize, Vec<String>>>,
     pub markdown: String,
+}
+
+/// Why a sweep could not be planned, run or merged.
+#[derive(Debug, thiserror::Error)]
+pub enum SweepError {
+    #[error(transparent)]
+    Learn(#[from] LearnError),
+    #[error("{0}")]
+    Selection(String),
+    #[error("{}", incomplete_message(.runs_dir, .total, .missing, .bad))]
+    Incomplete {
+        runs_dir: PathBuf,
+        total: usize,
+        /// (index, file name) of the runs without a file.
+        missing: Vec<(usize, String)>,
+        /// One line per file that is there but cannot be merged: its path and why.
+        bad: Vec<String>,
+    },
+}
+
+fn incomplete_message(runs_dir: &Path, total: &usize, missing: &[(usize, String)], bad: &[String]) -> String {
+    let mut s = format!("cannot merge {}: ", runs_dir.display());
+    let mut parts = Vec::new();
+    if !missing.is_empty() {
+        let idx: Vec<String> = missing.iter().map(|(i, _)| i.to_string()).collect();
+        parts.push(format!(
+            "{} of {total} runs missing (indices {}; run them with --run K or rerun their shards)",
+            missing.len(),
+            idx.join(", ")
+        ));
+    }
+    if !bad.is_empty() {
+        parts.push(format!(
+            "{} run file(s) not from this sweep (rerun each with --run K, which replaces it):\n  {}",
+            bad.len(),
+            bad.join("\n  ")
+        ));
+    }
+    s.push_str(&parts.join("; "));
+    s
+}
+
+/// The code that makes a run's numbers: the crate version and the kernel path (the AVX-512
+/// GEMM rounds its FMAs differently from the portable one, so runs made on CPUs with and
+/// without AVX-512 differ in the last bits and must not be merged). It is the version, not the
+/// commit: after changing training code without a version bump, use a fresh `--out`.
+pub fn code_version() -> String {
+    let kernels = if crate::kernels::simd::has_avx512() {
+        "avx512"
+    } else {
+        "portable"
+    };
+    format!("bowden-learning {} ({kernels} kernels)", env!("CARGO_PKG_VERSION"))
+}
+
+/// Everything a run's result depends on, hashed into its fingerprint.
+#[derive(Serialize)]
+struct RunIdentity<'a> {
+    code_version: &'a str,
+    data_fnv1a64: &'a str,
+    key: &'a RunKey,
+    epochs: usize,
+    early_stop: Option<usize>,
+    split: &'a SplitConfig,
+    phy_source: PhySource,
+}
+
+fn hash_json<T: Serialize>(value: &T) -> String {
+    // Plain structs of numbers, strings and enums: serialising them cannot fail.
+    fnv1a64_hex(&serde_json::to_vec(value).expect("a plain struct serialises"))
+}
+
+/// FNV-1a 64 (hex) of the code version, the data hash, the run's key and the sweep settings
+/// that change its result (epochs, early stop, split, source of the physical angles).
+pub fn run_fingerprint(key: &RunKey, cfg: &SweepConfig, data_fnv1a64: &str, code_version: &str) -> String {
+    hash_json(&RunIdentity {
+        code_version,
+        data_fnv1a64,
+        key,
+        epochs: cfg.epochs,
+        early_stop: cfg.early_stop,
+        split: &cfg.split,
+        phy_source: cfg.phy_source,
+    })
+}
+
+/// How `--shard I/N` divides the plan; written into the plan so a reader need not guess.
+pub const SHARDING: &str = "round-robin: shard I of N runs the indices i with i mod N = I";
+
+/// One run of a plan.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlannedRun {
+    /// Position in the plan: what `--run K` and `--shard I/N` select.
+    pub index: usize,
+    pub key: RunKey,
+    /// The result's file under the output directory.
+    pub file: String,
+    /// [`run_fingerprint`]: the run file must carry the same.
+    pub fingerprint: String,
+    /// `done`, `pending`, or `redo: <why>` against an output directory
+    /// ([`SweepPlan::check_status`]); absent when not checked.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub status: Option<String>,
+}
+
+/// Every run of a sweep, numbered, with what the runs are checked against.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SweepPlan {
+    pub format: String,
+    pub code_version: String,
+    /// The dataset directory as given.
+    pub data: String,
+    pub data_fnv1a64: String,
+    pub config: SweepConfig,
+    /// FNV-1a 64 (hex) of the code version, data hash and config (not `jobs`): shards whose
+    /// logs print the same fingerprint are pieces of one sweep.
+    pub fingerprint: String,
+    pub sharding: String,
+    pub runs: Vec<PlannedRun>,
+}
+
+/// Which runs of a plan one process executes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Selection {
+    All,
+    /// Indices ≡ `index` (mod `count`): round-robin, so every shard gets every kind of run
+    /// (the plan is ordered architecture-major, and long-L runs take longest) and the shards
+    /// finish at about the same time.
+    Shard {
+        index: usize,
+        count: usize,
+    },
+    /// One run by its index.
+    Run(usize),
+}
+
+impl std::str::FromStr for Selection {
+    type Err = String;
+    /// `I/N` (a shard; 0 ≤ I < N).
+    fn from_str(s: &str) -> Result<Self, String> {
+        let bad = || format!("--shard {s:?}: expected I/N with 0 ≤ I < N, e.g. 0/4 (shard 0 of 4)");
+        let (i, n) = s.split_once('/').ok_or_else(bad)?;
+        let index: usize = i.trim().parse().map_err(|_| bad())?;
+        let count: usize = n.trim().parse().map_err(|_| bad())?;
+        if count == 0 || index >= count {
+            return Err(bad());
+        }
+        Ok(Selection::Shard { index, count })
+    }
+}
+
+impl std::fmt::Display for Selection {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Selection::All => write!(f, "every run"),
+            Selection::Shard { index, count } => write!(f, "shard {index}/{count} (indices ≡ {index} mod {count})"),
+            Selection::Run(k) => write!(f, "run {k}"),
+        }
+    }
+}
+
+impl Selection {
+    /// The plan indices selected out of `runs`. A shard beyond the runs is empty (a job array
+    /// larger than the plan wastes a slot, nothing more); a run index beyond them is an error.
+    pub fn indices(&self, runs: usize) -> Result<Vec<usize>, SweepError> {
+        match *self {
+            Selection::All => Ok((0..runs).collect()),
+            Selection::Shard { index, count } => Ok((index..runs).step_by(count.max(1)).collect()),
+            Selection::Run(k) if k < runs => Ok(vec![k]),
+            Selection::Run(k) => Err(SweepError::Selection(format!(
+                "--run {k}: the plan has {runs} runs (indices 0..={})",
+                runs.saturating_sub(1)
+            ))),
+        }
+    }
 }
 
 pub fn sweep_keys(cfg: &SweepConfig) -> Vec<RunKey> {
@@ -142,50 +342,250 @@ pub fn sweep_keys(cfg: &SweepConfig) -> Vec<RunKey> {
     keys
 }
 
-fn reusable(path: &Path, key: &RunKey, cfg: &SweepConfig, data_hash: &str) -> Option<RunResult> {
-    let text = std::fs::read_to_string(path).ok()?;
-    let r: RunResult = serde_json::from_str(&text).ok()?;
-    (r.key == *key
-        && r.data_fnv1a64 == data_hash
-        && r.epochs == cfg.epochs
-        && r.early_stop == cfg.early_stop
-        && r.split == cfg.split
-        && r.phy_source == cfg.phy_source)
-        .then_some(r)
+/// The plan of a sweep over a dataset of hash `data_fnv1a64` (named `data`), made by
+/// `code_version`.
+pub fn plan_for(cfg: &SweepConfig, data: &str, data_fnv1a64: &str, code_version: &str) -> SweepPlan {
+    #[derive(Serialize)]
+    struct PlanIdentity<'a> {
+        code_version: &'a str,
+        data_fnv1a64: &'a str,
+        config: &'a SweepConfig,
+    }
+    let runs = sweep_keys(cfg)
+        .into_iter()
+        .enumerate()
+        .map(|(index, key)| PlannedRun {
+            index,
+            key,
+            file: format!("runs/{}", key.file_name()),
+            fingerprint: run_fingerprint(&key, cfg, data_fnv1a64, code_version),
+            status: None,
+        })
+        .collect();
+    SweepPlan {
+        format: "bowden-sweep-plan/1".into(),
+        code_version: code_version.into(),
+        data: data.into(),
+        data_fnv1a64: data_fnv1a64.into(),
+        config: cfg.clone(),
+        fingerprint: hash_json(&PlanIdentity {
+            code_version,
+            data_fnv1a64,
+            config: cfg,
+        }),
+        sharding: SHARDING.into(),
+        runs,
+    }
 }
 
-/// Runs (or resumes) a sweep over the dataset in `data_dir`, writing into `out_dir`.
-pub fn run_sweep(
-    data_dir: &Path,
+/// Reads the dataset in `data_dir` (its hash checked against its manifest) and plans the sweep
+/// over it with this build's [`code_version`].
+pub fn plan_sweep(data_dir: &Path, cfg: &SweepConfig) -> Result<(SweepPlan, Dataset), SweepError> {
+    let (ds, manifest) = Dataset::read_dir(data_dir).map_err(LearnError::from)?;
+    let plan = plan_for(
+        cfg,
+        &data_dir.display().to_string(),
+        &manifest.csv_fnv1a64,
+        &code_version(),
+    );
+    Ok((plan, ds))
+}
+
+/// What a run's file in `runs/` says about the run.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RunFileState {
+    /// A complete result of this run, made from the same data, settings and code.
+    Done(Box<RunResult>),
+    Missing,
+    /// Not a complete run file (a truncated write, garbage, an older format): why.
+    Unreadable(String),
+    /// A complete run file of another sweep: why (what differs).
+    Mismatch(String),
+}
+
+/// Checks the file of `run` in `runs_dir` against the plan.
+pub fn check_run_file(runs_dir: &Path, run: &PlannedRun, plan: &SweepPlan) -> RunFileState {
+    let path = runs_dir.join(run.key.file_name());
+    let text = match std::fs::read_to_string(&path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return RunFileState::Missing,
+        Err(e) => return RunFileState::Unreadable(format!("cannot read: {e}")),
+    };
+    let r: RunResult = match serde_json::from_str(&text) {
+        Ok(r) => r,
+        Err(e) => return RunFileState::Unreadable(format!("not a complete run file ({e})")),
+    };
+    let cfg = &plan.config;
+    let why = if r.key != run.key {
+        Some(format!("holds the run {}, not {}", r.key.name(), run.key.name()))
+    } else if r.data_fnv1a64 != plan.data_fnv1a64 {
+        Some(format!(
+            "made from different data: dataset FNV-1a {}, this sweep's data {} has {}",
+            r.data_fnv1a64, plan.data, plan.data_fnv1a64
+        ))
+    } else if r.code_version != plan.code_version {
+        Some(format!("made by {}, this is {}", r.code_version, plan.code_version))
+    } else if (r.epochs, r.early_stop) != (cfg.epochs, cfg.early_stop) {
+        Some(format!(
+            "made with a different config: epochs {} early stop {:?}, this sweep {} and {:?}",
+            r.epochs, r.early_stop, cfg.epochs, cfg.early_stop
+        ))
+    } else if (r.split, r.phy_source) != (cfg.split, cfg.phy_source) {
+        Some(format!(
+            "made with a different config: split {:?} from {:?}, this sweep {:?} from {:?}",
+            r.split, r.phy_source, cfg.split, cfg.phy_source
+        ))
+    } else if r.fingerprint != run.fingerprint {
+        Some(format!(
+            "fingerprint {} ≠ the plan's {} (edited by hand?)",
+            r.fingerprint, run.fingerprint
+        ))
+    } else {
+        None
+    };
+    match why {
+        Some(w) => RunFileState::Mismatch(w),
+        None => RunFileState::Done(Box::new(r)),
+    }
+}
+
+impl SweepPlan {
+    /// Fills every run's `status` against `out_dir`.
+    pub fn check_status(&mut self, out_dir: &Path) {
+        let runs_dir = out_dir.join("runs");
+        let states: Vec<String> = self
+            .runs
+            .iter()
+            .map(|run| match check_run_file(&runs_dir, run, self) {
+                RunFileState::Done(_) => "done".to_string(),
+                RunFileState::Missing => "pending".to_string(),
+                RunFileState::Unreadable(w) | RunFileState::Mismatch(w) => format!("redo: {w}"),
+            })
+            .collect();
+        for (run, s) in self.runs.iter_mut().zip(states) {
+            run.status = Some(s);
+        }
+    }
+}
+
+/// Writes `bytes` to `path` so that a reader sees the old file or the whole new one, never a
+/// part: into a temporary file beside it (same directory, so the rename stays on one file
+/// system), flushed to disk, then renamed over `path`. A process killed before the rename
+/// leaves only a `.NAME.tmp-PID` file, which readers ignore.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), LearnError> {
+    let dir = path
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path.file_name().map(|n| n.to_string_lossy()).unwrap_or_default();
+    let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
+    let io = |p: &Path| {
+        let p = p.to_path_buf();
+        move |source| LearnError::Io { path: p, source }
+    };
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let written = std::fs::File::create(&tmp).and_then(|mut f| {
+        f.write_all(bytes)?;
+        f.sync_all()
+    });
+    if let Err(e) = written.and_then(|_| std::fs::rename(&tmp, path)) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(io(path)(e));
+    }
+    Ok(())
+}
+
+/// Removes what killed writers of `path` left (`.NAME.tmp-*`), once `path` is complete.
+fn remove_stale_temps(path: &Path) {
+    let (Some(dir), Some(name)) = (path.parent(), path.file_name()) else {
+        return;
+    };
+    let prefix = format!(".{}.tmp-", name.to_string_lossy());
+    if let Ok(entries) = std::fs::read_dir(dir) {
+        for e in entries.flatten() {
+            if e.file_name().to_string_lossy().starts_with(&prefix) {
+                let _ = std::fs::remove_file(e.path());
+            }
+        }
+    }
+}
+
+fn json_bytes<T: Serialize>(path: &Path, value: &T) -> Result<Vec<u8>, LearnError> {
+    let mut text = serde_json::to_string_pretty(value).map_err(|source| LearnError::Json {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    text.push('\n');
+    Ok(text.into_bytes())
+}
+
+/// One run an [`execute_runs`] call accounted for.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunDone {
+    pub index: usize,
+    pub key: RunKey,
+    pub best_val_rmse_deg: f64,
+    /// False when its file from an earlier process was kept.
+    pub trained: bool,
+}
+
+/// What [`execute_runs`] did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExecReport {
+    pub selection: Selection,
+    /// Every selected run, by index.
+    pub runs: Vec<RunDone>,
+    pub trained: usize,
+    pub reused: usize,
+    /// Selected runs whose file was there but unusable (truncated, another sweep's), redone.
+    pub redone: Vec<(usize, String)>,
+}
+
+/// Trains the runs of `selection` that `out_dir/runs` lacks (or holds only half-written or
+/// from another sweep), `jobs` at once, each result written atomically; keeps the others.
+pub fn execute_runs(
+    plan: &SweepPlan,
+    ds: &Dataset,
     out_dir: &Path,
-    cfg: &SweepConfig,
+    selection: Selection,
+    jobs: usize,
     progress: bool,
-) -> Result<SweepSummary, LearnError> {
-    let (ds, manifest) = Dataset::read_dir(data_dir)?;
+) -> Result<ExecReport, SweepError> {
+    let selected = selection.indices(plan.runs.len())?;
+    let cfg = &plan.config;
     let runs_dir = out_dir.join("runs");
     std::fs::create_dir_all(&runs_dir).map_err(|source| LearnError::Io {
         path: runs_dir.clone(),
         source,
     })?;
-    let keys = sweep_keys(cfg);
-    let mut done: BTreeMap<RunKey, RunResult> = BTreeMap::new();
-    let mut pending = Vec::new();
-    for k in &keys {
-        match reusable(&runs_dir.join(k.file_name()), k, cfg, &manifest.csv_fnv1a64) {
-            Some(r) => {
-                done.insert(*k, r);
+    let mut done: Vec<RunDone> = Vec::new();
+    let mut pending: Vec<&PlannedRun> = Vec::new();
+    let mut redone = Vec::new();
+    for &i in &selected {
+        let run = &plan.runs[i];
+        match check_run_file(&runs_dir, run, plan) {
+            RunFileState::Done(r) => done.push(RunDone {
+                index: i,
+                key: run.key,
+                best_val_rmse_deg: r.best_val_rmse_deg,
+                trained: false,
+            }),
+            RunFileState::Missing => pending.push(run),
+            RunFileState::Unreadable(w) | RunFileState::Mismatch(w) => {
+                redone.push((i, format!("{}: {w}", runs_dir.join(run.key.file_name()).display())));
+                pending.push(run);
             }
-            None => pending.push(*k),
         }
     }
     let reused = done.len();
     // Windows per (direction, L), shared read-only by the workers.
     let mut windows: BTreeMap<(Direction, usize), WindowSet> = BTreeMap::new();
-    for k in &pending {
+    for run in &pending {
+        let k = run.key;
         if let std::collections::btree_map::Entry::Vacant(e) = windows.entry((k.direction, k.seq_len)) {
-            let w = WindowSet::build(&ds, k.direction, k.seq_len, cfg.split, cfg.phy_source).map_err(|source| {
+            let w = WindowSet::build(ds, k.direction, k.seq_len, cfg.split, cfg.phy_source).map_err(|source| {
                 LearnError::Window {
-                    dir: data_dir.to_path_buf(),
+                    dir: PathBuf::from(&plan.data),
                     source,
                 }
             })?;
@@ -193,7 +593,7 @@ pub fn run_sweep(
         }
     }
     let pb = if progress {
-        let pb = ProgressBar::new(keys.len() as u64);
+        let pb = ProgressBar::new(selected.len() as u64);
         pb.set_style(
             ProgressStyle::with_template("sweep [{bar:30}] {pos}/{len} runs {elapsed_precise} ETA {eta} {msg}")
                 .unwrap_or_else(|_| ProgressStyle::default_bar())
@@ -205,21 +605,32 @@ pub fn run_sweep(
     };
     pb.set_position(reused as u64);
     let next = AtomicUsize::new(0);
-    let results: Mutex<Vec<RunResult>> = Mutex::new(Vec::new());
+    let results: Mutex<Vec<RunDone>> = Mutex::new(Vec::new());
     let first_error: Mutex<Option<LearnError>> = Mutex::new(None);
-    let jobs = cfg.jobs.clamp(1, pending.len().max(1));
+    let jobs = jobs.clamp(1, pending.len().max(1));
     std::thread::scope(|s| {
         for _ in 0..jobs {
             s.spawn(|| loop {
                 let i = next.fetch_add(1, Ordering::SeqCst);
-                let Some(k) = pending.get(i).copied() else { break };
+                let Some(run) = pending.get(i).copied() else { break };
                 if first_error.lock().map(|e| e.is_some()).unwrap_or(true) {
                     break;
                 }
-                let res = run_one(&k, cfg, &windows[&(k.direction, k.seq_len)], &manifest.csv_fnv1a64)
-                    .and_then(|r| write_json(&runs_dir.join(k.file_name()), &r).map(|_| r));
+                let k = run.key;
+                let path = runs_dir.join(k.file_name());
+                let res = run_one(
+                    &k,
+                    cfg,
+                    &windows[&(k.direction, k.seq_len)],
+                    &plan.data_fnv1a64,
+                    &plan.code_version,
+                    &run.fingerprint,
+                )
+                .and_then(|r| json_bytes(&path, &r).map(|b| (r, b)))
+                .and_then(|(r, b)| write_atomic(&path, &b).map(|_| r));
                 match res {
                     Ok(r) => {
+                        remove_stale_temps(&path);
                         pb.set_message(format!(
                             "{} {} L={} s{}: {:.3}°",
                             k.model_label(),
@@ -230,7 +641,12 @@ pub fn run_sweep(
                         ));
                         pb.inc(1);
                         if let Ok(mut v) = results.lock() {
-                            v.push(r);
+                            v.push(RunDone {
+                                index: run.index,
+                                key: k,
+                                best_val_rmse_deg: r.best_val_rmse_deg,
+                                trained: true,
+                            });
                         }
                     }
                     Err(e) => {
@@ -244,20 +660,83 @@ pub fn run_sweep(
     });
     pb.finish();
     if let Some(e) = first_error.into_inner().ok().flatten() {
-        return Err(e);
+        return Err(e.into());
     }
-    for r in results.into_inner().unwrap_or_default() {
-        done.insert(r.key, r);
+    let trained_runs = results.into_inner().unwrap_or_default();
+    let trained = trained_runs.len();
+    done.extend(trained_runs);
+    done.sort_by_key(|r| r.index);
+    Ok(ExecReport {
+        selection,
+        runs: done,
+        trained,
+        reused,
+        redone,
+    })
+}
+
+/// Reads every run of the plan from `out_dir/runs` and writes sweep.json, sweep.md and
+/// sweep.svg into `out_dir`. Refuses, naming each, runs missing and files that are not
+/// complete results of this plan (other data, settings or code; truncated); files of runs
+/// outside the plan (a larger earlier sweep) and leftover temporary files are ignored.
+pub fn merge_sweep(plan: &SweepPlan, out_dir: &Path) -> Result<SweepSummary, SweepError> {
+    let runs_dir = out_dir.join("runs");
+    let mut done: BTreeMap<RunKey, RunResult> = BTreeMap::new();
+    let mut missing = Vec::new();
+    let mut bad = Vec::new();
+    for run in &plan.runs {
+        match check_run_file(&runs_dir, run, plan) {
+            RunFileState::Done(r) => {
+                done.insert(run.key, *r);
+            }
+            RunFileState::Missing => missing.push((run.index, run.key.file_name())),
+            RunFileState::Unreadable(w) | RunFileState::Mismatch(w) => bad.push(format!(
+                "{} (run {}): {w}",
+                runs_dir.join(run.key.file_name()).display(),
+                run.index
+            )),
+        }
     }
-    let summary = summarise(cfg, &data_dir.display().to_string(), &done, reused);
-    write_json(&out_dir.join("sweep.json"), &summary)?;
+    if !missing.is_empty() || !bad.is_empty() {
+        return Err(SweepError::Incomplete {
+            runs_dir,
+            total: plan.runs.len(),
+            missing,
+            bad,
+        });
+    }
+    let summary = summarise(&plan.config, &plan.data, &done, 0);
+    let json_path = out_dir.join("sweep.json");
+    write_atomic(&json_path, &json_bytes(&json_path, &summary)?)?;
     let md_path = out_dir.join("sweep.md");
-    std::fs::write(&md_path, &summary.markdown).map_err(|source| LearnError::Io { path: md_path, source })?;
+    write_atomic(&md_path, summary.markdown.as_bytes())?;
     plot_sweep(&out_dir.join("sweep.svg"), &summary)?;
     Ok(summary)
 }
 
-fn run_one(k: &RunKey, cfg: &SweepConfig, data: &WindowSet, data_hash: &str) -> Result<RunResult, LearnError> {
+/// Runs (or resumes) a whole sweep over the dataset in `data_dir`, writing into `out_dir`:
+/// [`plan_sweep`], [`execute_runs`] of every run, [`merge_sweep`].
+pub fn run_sweep(
+    data_dir: &Path,
+    out_dir: &Path,
+    cfg: &SweepConfig,
+    progress: bool,
+) -> Result<SweepSummary, SweepError> {
+    let (plan, ds) = plan_sweep(data_dir, cfg)?;
+    let report = execute_runs(&plan, &ds, out_dir, Selection::All, cfg.jobs, progress)?;
+    let mut summary = merge_sweep(&plan, out_dir)?;
+    summary.reused = report.reused;
+    Ok(summary)
+}
+
+fn run_one(
+    k: &RunKey,
+    cfg: &SweepConfig,
+    data: &WindowSet,
+    data_hash: &str,
+    code_version: &str,
+    fingerprint: &str,
+) -> Result<RunResult, LearnError> {
     let mut tc = TrainConfig::paper(k.arch, k.direction, k.seq_len, cfg.epochs, k.seed);
     tc.tcn_block = k.tcn_block.unwrap_or_default();
     tc.early_stop = cfg.early_stop;
@@ -267,11 +746,13 @@ fn run_one(k: &RunKey, cfg: &SweepConfig, data: &WindowSet, data_hash: &str) -> 
     let best = out.best();
     Ok(RunResult {
         key: *k,
+        code_version: code_version.to_string(),
         data_fnv1a64: data_hash.to_string(),
         epochs: cfg.epochs,
         early_stop: cfg.early_stop,
         split: cfg.split,
         phy_source: cfg.phy_source,
+        fingerprint: fingerprint.to_string(),
         params: ModelSpec::new(k.arch, k.seq_len, data.joints, tc.tcn_block).param_count(),
         best_epoch: out.best_epoch,
         epochs_run: out.epochs.len(),
@@ -524,4 +1005,183 @@ pub fn plot_sweep(path: &Path, summary: &SweepSummary) -> Result<(), LearnError>
     }
     root.present().map_err(|e| err(e.to_string()))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cfg() -> SweepConfig {
+        SweepConfig {
+            archs: vec![Arch::Tcn, Arch::Fnn],
+            seq_lens: vec![8, 12],
+            seeds: 2,
+            directions: vec![Direction::Forward],
+            tcn_blocks: vec![TcnBlock::ReluLinear],
+            epochs: 2,
+            early_stop: None,
+            split: SplitConfig::default(),
+            phy_source: PhySource::Truth,
+            jobs: 2,
+        }
+    }
+
+    fn result_of(plan: &SweepPlan, run: &PlannedRun) -> RunResult {
+        RunResult {
+            key: run.key,
+            code_version: plan.code_version.clone(),
+            data_fnv1a64: plan.data_fnv1a64.clone(),
+            epochs: plan.config.epochs,
+            early_stop: plan.config.early_stop,
+            split: plan.config.split,
+            phy_source: plan.config.phy_source,
+            fingerprint: run.fingerprint.clone(),
+            params: 10,
+            best_epoch: 1,
+            epochs_run: 2,
+            best_val_rmse_deg: 1.5 + run.index as f64,
+            best_val_rmse_per_joint_deg: vec![1.5; 5],
+            identity_val_rmse_deg: 9.0,
+            val_rmse_curve_deg: vec![2.0, 1.5],
+            seconds: 0.25,
+        }
+    }
+
+    #[test]
+    fn shards_partition_the_plan_and_bad_selections_are_refused() {
+        for n in [1usize, 3, 4, 9] {
+            let mut seen = vec![0; 8];
+            for i in 0..n {
+                let sel: Selection = format!("{i}/{n}").parse().unwrap();
+                for k in sel.indices(8).unwrap() {
+                    assert_eq!(k % n, i);
+                    seen[k] += 1;
+                }
+            }
+            assert!(seen.iter().all(|&c| c == 1), "{n} shards: {seen:?}");
+        }
+        for bad in ["4/4", "1", "a/2", "0/0", "-1/3"] {
+            let e = bad.parse::<Selection>().unwrap_err();
+            assert!(e.contains("I/N"), "{bad}: {e}");
+        }
+        assert_eq!(Selection::Run(7).indices(8).unwrap(), vec![7]);
+        let e = Selection::Run(8).indices(8).unwrap_err().to_string();
+        assert!(e.contains("--run 8") && e.contains("8 runs"), "{e}");
+    }
+
+    #[test]
+    fn fingerprints_follow_what_changes_results_and_not_jobs() {
+        let base = plan_for(&cfg(), "d", "00aa", "v1");
+        assert_eq!(base.runs.len(), 8);
+        assert_eq!(base.runs[3].index, 3);
+        let mut other_jobs = cfg();
+        other_jobs.jobs = 7;
+        assert_eq!(plan_for(&other_jobs, "elsewhere", "00aa", "v1"), {
+            let mut p = base.clone();
+            p.data = "elsewhere".into();
+            p.config.jobs = 7;
+            p
+        });
+        let mut more_epochs = cfg();
+        more_epochs.epochs = 3;
+        for other in [
+            plan_for(&cfg(), "d", "00ab", "v1"),
+            plan_for(&cfg(), "d", "00aa", "v2"),
+            plan_for(&more_epochs, "d", "00aa", "v1"),
+        ] {
+            assert_ne!(other.fingerprint, base.fingerprint);
+            assert_ne!(other.runs[0].fingerprint, base.runs[0].fingerprint);
+        }
+        // More seeds: a new plan, but the runs both have keep their fingerprints (resumable).
+        let mut more_seeds = cfg();
+        more_seeds.seeds = 3;
+        let bigger = plan_for(&more_seeds, "d", "00aa", "v1");
+        assert_ne!(bigger.fingerprint, base.fingerprint);
+        let fp = |p: &SweepPlan, k: &RunKey| p.runs.iter().find(|r| r.key == *k).map(|r| r.fingerprint.clone());
+        for r in &base.runs {
+            assert_eq!(fp(&bigger, &r.key), Some(r.fingerprint.clone()));
+        }
+        // jobs never reaches sweep.json.
+        let json = serde_json::to_string(&base.config).unwrap();
+        assert!(!json.contains("jobs"), "{json}");
+    }
+
+    #[test]
+    fn run_files_are_checked_and_merge_names_what_is_wrong() {
+        let dir = tempfile::tempdir().unwrap();
+        let runs_dir = dir.path().join("runs");
+        let plan = plan_for(&cfg(), "d", "00aa", "v1");
+        let write = |run: &PlannedRun, r: &RunResult| {
+            let p = runs_dir.join(run.key.file_name());
+            write_atomic(&p, &json_bytes(&p, r).unwrap()).unwrap();
+        };
+        for run in &plan.runs {
+            write(run, &result_of(&plan, run));
+        }
+        let leftovers: Vec<_> = std::fs::read_dir(&runs_dir)
+            .unwrap()
+            .flatten()
+            .filter(|e| e.file_name().to_string_lossy().starts_with('.'))
+            .collect();
+        assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
+        let full = merge_sweep(&plan, dir.path()).unwrap();
+        assert_eq!(full.runs, 8);
+        let json = std::fs::read(dir.path().join("sweep.json")).unwrap();
+
+        // Truncated, other data, other epochs, missing: each named.
+        let (r1, r2, r3) = (&plan.runs[1], &plan.runs[2], &plan.runs[3]);
+        let p1 = runs_dir.join(r1.key.file_name());
+        let text = std::fs::read_to_string(&p1).unwrap();
+        std::fs::write(&p1, &text[..text.len() / 2]).unwrap();
+        assert!(matches!(
+            check_run_file(&runs_dir, r1, &plan),
+            RunFileState::Unreadable(_)
+        ));
+        let mut other_data = result_of(&plan, r2);
+        other_data.data_fnv1a64 = "00ff".into();
+        write(r2, &other_data);
+        let mut other_epochs = result_of(&plan, r3);
+        other_epochs.epochs = 5;
+        write(r3, &other_epochs);
+        std::fs::remove_file(runs_dir.join(plan.runs[6].key.file_name())).unwrap();
+        let e = merge_sweep(&plan, dir.path()).unwrap_err().to_string();
+        for needle in [
+            "1 of 8 runs missing (indices 6;".to_string(),
+            format!("{} (run 1): not a complete run file", p1.display()),
+            format!(
+                "{} (run 2): made from different data: dataset FNV-1a 00ff",
+                runs_dir.join(r2.key.file_name()).display()
+            ),
+            "(run 3): made with a different config: epochs 5".to_string(),
+        ] {
+            assert!(e.contains(&needle), "{needle:?} not in {e}");
+        }
+        // A hand-edited result with its key and settings intact is caught by the fingerprint.
+        let mut edited = result_of(&plan, r2);
+        edited.fingerprint = "0123".into();
+        write(r2, &edited);
+        assert!(matches!(check_run_file(&runs_dir, r2, &plan), RunFileState::Mismatch(w) if w.contains("fingerprint")));
+        // Repaired: the same bytes as before, whatever the file times or order.
+        for run in [r1, r2, r3, &plan.runs[6]] {
+            write(run, &result_of(&plan, run));
+        }
+        let mut plan_status = plan.clone();
+        plan_status.check_status(dir.path());
+        assert!(plan_status.runs.iter().all(|r| r.status.as_deref() == Some("done")));
+        merge_sweep(&plan, dir.path()).unwrap();
+        assert_eq!(std::fs::read(dir.path().join("sweep.json")).unwrap(), json);
+    }
+
+    #[test]
+    fn a_stale_temporary_file_is_removed_once_its_run_is_complete() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.json");
+        let stale = dir.path().join(".x.json.tmp-999999");
+        std::fs::write(&stale, "{\"key\":").unwrap();
+        write_atomic(&path, b"{}\n").unwrap();
+        assert!(stale.exists(), "write_atomic leaves others' files alone");
+        remove_stale_temps(&path);
+        assert!(!stale.exists());
+        assert_eq!(std::fs::read(&path).unwrap(), b"{}\n");
+    }
 }

@@ -172,7 +172,8 @@ impl Engine {
             Backend::Fused => {
                 let net = Net::new(spec);
                 let prep = net.prepared(&params);
-                let cap = cfg.batch_size.div_ceil(SHARDS);
+                // Evaluation runs in chunks of max(batch, 32) windows: room for either.
+                let cap = cfg.batch_size.max(32).div_ceil(SHARDS);
                 let (l, j) = (spec.seq_len, spec.joints);
                 let shards = (0..SHARDS)
                     .map(|_| Shard {
@@ -344,6 +345,104 @@ impl Engine {
 /// Trains one model on prepared windows. `progress`, when given, is advanced once per epoch
 /// (its length is set to the number of epochs).
 pub fn train(data: &WindowSet, cfg: &TrainConfig, progress: Option<&ProgressBar>) -> Result<TrainOutcome, TrainError> {
+    train_from(data, cfg, None, progress)
+}
+
+/// Fine-tunes `init` on `data` (the paper's proposal for cable slack: "fine-tuning it from a
+/// pre-trained model with a small number of additional datasets"). The windows must carry
+/// `init`'s normalisation ([`WindowSet::with_normalisers`]) and `cfg` its structure. The
+/// outcome's `initial_val_rmse_deg` is `init`'s own validation RMSE on `data`, the yardstick
+/// a fine-tuned model has to beat; its support stays `init`'s (the new data lies within it).
+pub fn fine_tune(
+    data: &WindowSet,
+    cfg: &TrainConfig,
+    init: &ModelFile,
+    progress: Option<&ProgressBar>,
+) -> Result<TrainOutcome, TrainError> {
+    check_fits(data, cfg, init)?;
+    let mut out = train_from(data, cfg, Some(&init.params), progress)?;
+    out.model.support = init.support.clone();
+    Ok(out)
+}
+
+/// Validation RMSE (deg, over joints) of `model` on the windows `ids` of `data`, which must
+/// carry the model's normalisation.
+pub fn rmse_deg(model: &ModelFile, data: &WindowSet, ids: &[usize]) -> Result<f64, TrainError> {
+    let cfg = TrainConfig {
+        tcn_block: model.spec.tcn_block,
+        ..TrainConfig::paper(model.spec.arch, model.direction, model.spec.seq_len, 1, 0)
+    };
+    check_fits(data, &cfg, model)?;
+    if ids.is_empty() {
+        return Err(TrainError::Config("no windows to validate on".into()));
+    }
+    let mut engine = Engine::new(model.spec, &cfg)?;
+    engine.set_params(&model.params)?;
+    let sse = engine.evaluate(data, ids, cfg.batch_size.max(32))?;
+    let n = ids.len() as f64;
+    let per_joint: Vec<f64> = (0..data.joints)
+        .map(|k| (sse[k] / n).sqrt() * data.norm_out.sd[k])
+        .collect();
+    Ok(overall_rmse(&per_joint))
+}
+
+/// Mean residual (target − prediction) per joint, deg, of `model` over the windows `ids` of
+/// `data` (which must carry the model's normalisation): the offset a re-centred output would
+/// remove (`bowden adapt`'s first step after cable slack).
+pub fn mean_residual_deg(model: &ModelFile, data: &WindowSet, ids: &[usize]) -> Result<Vec<f64>, TrainError> {
+    let cfg = TrainConfig {
+        tcn_block: model.spec.tcn_block,
+        ..TrainConfig::paper(model.spec.arch, model.direction, model.spec.seq_len, 1, 0)
+    };
+    check_fits(data, &cfg, model)?;
+    if ids.is_empty() {
+        return Err(TrainError::Config("no windows to average over".into()));
+    }
+    let net = Net::new(model.spec);
+    let prep = net.prepared(&model.params);
+    let (l, j) = (model.spec.seq_len, model.spec.joints);
+    let chunk = 32;
+    let mut ws = net.workspace(chunk);
+    let mut x = vec![0.0f32; chunk * l * j];
+    let mut y = vec![0.0f32; chunk * j];
+    let mut out = vec![0.0f32; chunk * j];
+    let mut sum = vec![0.0f64; j];
+    for batch in ids.chunks(chunk) {
+        let n = batch.len();
+        data.gather(batch, &mut x, &mut y);
+        net.forward(&model.params, &prep, &x, n, &mut ws, &mut out);
+        for i in 0..n * j {
+            sum[i % j] += (y[i] - out[i]) as f64;
+        }
+    }
+    Ok((0..j)
+        .map(|k| sum[k] / ids.len() as f64 * data.norm_out.sd[k])
+        .collect())
+}
+
+fn check_fits(data: &WindowSet, cfg: &TrainConfig, init: &ModelFile) -> Result<(), TrainError> {
+    let s = init.spec;
+    if s.arch != cfg.arch || s.seq_len != cfg.seq_len || s.tcn_block != cfg.tcn_block || init.direction != cfg.direction
+    {
+        return Err(TrainError::Config(format!(
+            "the model is a {} {} (L = {}, {}) but the run asks for a {} {} (L = {}, {})",
+            init.direction, s.arch, s.seq_len, s.tcn_block, cfg.direction, cfg.arch, cfg.seq_len, cfg.tcn_block
+        )));
+    }
+    if s.joints != data.joints || data.norm_in != init.norm_in || data.norm_out != init.norm_out {
+        return Err(TrainError::Config(
+            "the windows do not carry the model's joints and normalisation (WindowSet::with_normalisers)".into(),
+        ));
+    }
+    Ok(())
+}
+
+fn train_from(
+    data: &WindowSet,
+    cfg: &TrainConfig,
+    init: Option<&[f32]>,
+    progress: Option<&ProgressBar>,
+) -> Result<TrainOutcome, TrainError> {
     if cfg.epochs == 0 {
         return Err(TrainError::Config("epochs must be at least 1".into()));
     }
@@ -362,6 +461,9 @@ pub fn train(data: &WindowSet, cfg: &TrainConfig, progress: Option<&ProgressBar>
     }
     let spec = ModelSpec::new(cfg.arch, cfg.seq_len, data.joints, cfg.tcn_block);
     let mut engine = Engine::new(spec, cfg)?;
+    if let Some(p) = init {
+        engine.set_params(p)?;
+    }
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5eed_5eed_5eed_5eed);
     let mut order = data.train.clone();
     let j = data.joints;
@@ -440,6 +542,30 @@ pub fn train(data: &WindowSet, cfg: &TrainConfig, progress: Option<&ProgressBar>
         initial_val_loss,
         initial_val_rmse_deg,
     })
+}
+
+impl Engine {
+    /// Replaces the parameters (fine-tuning starts from a trained model's).
+    fn set_params(&mut self, p: &[f32]) -> Result<(), TrainError> {
+        match self {
+            Engine::Fused { net, params, prep, .. } => {
+                if p.len() != params.len() {
+                    return Err(TrainError::Config(format!(
+                        "the model has {} parameters, the architecture {}",
+                        p.len(),
+                        params.len()
+                    )));
+                }
+                params.copy_from_slice(p);
+                net.prepare(params, prep);
+            }
+            Engine::Candle { .. } => {
+                // The optimiser holds the candle variables: starting elsewhere would need both rebuilt.
+                return Err(TrainError::Config("fine-tuning runs on the fused backend only".into()));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// One model and its optimiser, stepped batch by batch (benchmarks).

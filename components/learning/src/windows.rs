@@ -168,6 +168,30 @@ impl WindowSet {
         split: SplitConfig,
         phy: PhySource,
     ) -> Result<Self, WindowError> {
+        Self::build_split(ds, direction, seq_len, Some(split), phy)
+    }
+
+    /// Every valid target in `train`, `val` empty, nothing purged: the caller assigns the
+    /// windows (`bowden adapt` holds out the newest rows itself), and sets the normalisation
+    /// with [`Self::with_normalisers`] (the one fitted here is over all samples).
+    pub fn build_unsplit(
+        ds: &Dataset,
+        direction: Direction,
+        seq_len: usize,
+        phy: PhySource,
+    ) -> Result<Self, WindowError> {
+        Self::build_split(ds, direction, seq_len, None, phy)
+    }
+
+    fn build_split(
+        ds: &Dataset,
+        direction: Direction,
+        seq_len: usize,
+        split: Option<SplitConfig>,
+        phy: PhySource,
+    ) -> Result<Self, WindowError> {
+        let unsplit = split.is_none();
+        let split = split.unwrap_or_default();
         if seq_len == 0 {
             return Err(WindowError::SeqLen(seq_len));
         }
@@ -206,7 +230,7 @@ impl WindowSet {
 
         // Split labels: true = validation.
         let mut is_val = vec![false; n];
-        for b in 0..split.val_blocks {
+        for b in 0..if unsplit { 0 } else { split.val_blocks } {
             let start = b * n / split.val_blocks;
             let end = (b + 1) * n / split.val_blocks;
             let len = end - start;
@@ -240,7 +264,7 @@ impl WindowSet {
                 train.push(t);
             }
         }
-        if train.is_empty() || val.is_empty() {
+        if train.is_empty() || (val.is_empty() && !unsplit) {
             return Err(WindowError::TooFew {
                 train: train.len(),
                 val: val.len(),
@@ -291,6 +315,42 @@ impl WindowSet {
             purged,
             invalid_samples: valid.iter().filter(|&&v| !v).count(),
         })
+    }
+
+    /// The same windows under another model's normalisation (fine-tuning keeps the
+    /// normalisation the model was trained and exported with; `bowden adapt`).
+    pub fn with_normalisers(mut self, norm_in: Normaliser, norm_out: Normaliser) -> Result<Self, WindowError> {
+        let j = self.joints;
+        if norm_in.joints() != j || norm_out.joints() != j {
+            return Err(WindowError::Joints {
+                joints: j,
+                expected: norm_in.joints(),
+            });
+        }
+        let n = self.target_deg.len() / j;
+        let pad = self.seq_len - 1;
+        for i in 0..pad {
+            for k in 0..j {
+                self.xs[i * j + k] = norm_in.apply(k, 0.0);
+            }
+        }
+        for i in 0..n {
+            for k in 0..j {
+                self.xs[(pad + i) * j + k] = norm_in.apply(k, self.input_deg[i * j + k]);
+                self.ys[i * j + k] = norm_out.apply(k, self.target_deg[i * j + k]);
+            }
+        }
+        self.norm_in = norm_in;
+        self.norm_out = norm_out;
+        Ok(self)
+    }
+
+    /// Drops the windows that reach into the zero padding before the first sample: data
+    /// gathered mid-operation had a real history there, which the padding would misstate.
+    pub fn drop_padded(&mut self) {
+        let first = self.seq_len - 1;
+        self.train.retain(|&t| t >= first);
+        self.val.retain(|&t| t >= first);
     }
 
     /// The normalised window of target `t`: `L × J`, oldest first.

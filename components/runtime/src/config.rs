@@ -230,7 +230,7 @@ pub struct KindInfo {
 }
 
 /// The kinds bowden ships.
-pub const KINDS: [KindInfo; 7] = [
+pub const KINDS: [KindInfo; 8] = [
     KindInfo {
         kind: "trajectory",
         inputs: &[],
@@ -288,6 +288,19 @@ pub const KINDS: [KindInfo; 7] = [
         passive_inputs: &[services::MOTOR_COMMAND],
         outputs: &[services::MARKER_SET, services::JOINT_ESTIMATE],
         periodic: false,
+        default_wake_timeout_us: None,
+        default_deadline_us: None,
+    },
+    KindInfo {
+        // Online adaptation (docs/architecture.md, "Online adaptation"): reads what the chain
+        // sends and measures without ever being waited for, fine-tunes beside it, announces
+        // new models. Periodic so it drains its inputs whatever the chain does.
+        kind: "adapt",
+        inputs: &[],
+        side_inputs: &[],
+        passive_inputs: &[services::JOINT_COMMAND, services::JOINT_ESTIMATE],
+        outputs: &[services::MODEL_UPDATE],
+        periodic: true,
         default_wake_timeout_us: None,
         default_deadline_us: None,
     },

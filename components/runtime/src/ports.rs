@@ -12,8 +12,8 @@
 //! pre-faulted pool (no system allocator call); the allocation test counts it per cycle.
 
 use bowden_interfaces::{
-    ClockTick, ComponentStatus, JointCommand, JointEstimate, JointTarget, MarkerSet, MotorCommand, PlantState,
-    RgbdFrameHeader, SafetyCommand, SampleHeader,
+    ClockTick, ComponentStatus, JointCommand, JointEstimate, JointTarget, MarkerSet, ModelUpdate, MotorCommand,
+    PlantState, RgbdFrameHeader, SafetyCommand, SampleHeader,
 };
 use iceoryx2::node::{Node, NodeBuilder};
 use iceoryx2::port::listener::Listener;
@@ -86,6 +86,7 @@ impl_message! {
     ComponentStatus => "bowden::ComponentStatus",
     SafetyCommand => "bowden::SafetyCommand",
     ClockTick => "bowden::ClockTick",
+    ModelUpdate => "bowden::ModelUpdate",
 }
 
 /// Something went wrong with an iceoryx2 port; names the service.

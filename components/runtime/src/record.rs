@@ -23,8 +23,8 @@ use crate::config::recorder_services;
 use crate::ports::{FrameInput, Input, Message};
 use crate::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
 use bowden_interfaces::{
-    services, ClockTick, ComponentStatus, JointCommand, JointEstimate, JointTarget, MarkerSet, MotorCommand,
-    PlantState, RgbdFrameHeader, SafetyCommand,
+    services, ClockTick, ComponentStatus, JointCommand, JointEstimate, JointTarget, MarkerSet, ModelUpdate,
+    MotorCommand, PlantState, RgbdFrameHeader, SafetyCommand,
 };
 use std::fs::File;
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
@@ -89,6 +89,7 @@ pub fn service_type(service: &str) -> Option<(&'static str, u16, u32)> {
         services::COMPONENT_STATUS => s::<ComponentStatus>(),
         services::SAFETY => s::<SafetyCommand>(),
         services::CLOCK => s::<ClockTick>(),
+        services::MODEL_UPDATE => s::<ModelUpdate>(),
         services::RGBD_FRAME => (
             RgbdFrameHeader::TYPE_NAME,
             KIND_FRAME,
@@ -685,6 +686,7 @@ impl RecorderStage {
                 services::COMPONENT_STATUS => src::<ComponentStatus>(env, s, false)?,
                 services::SAFETY => src::<SafetyCommand>(env, s, false)?,
                 services::CLOCK => src::<ClockTick>(env, s, true)?,
+                services::MODEL_UPDATE => src::<ModelUpdate>(env, s, false)?,
                 services::RGBD_FRAME => Box::new(FrameSource {
                     input: env.ports.frame_input(s, 4)?,
                     last_seq: None,

@@ -5,8 +5,8 @@ use crate::ports::{FrameOutput, Message, Output, PortContext, PortError, Wakeup}
 use crate::record::{LogError, LogReader, KIND_FRAME};
 use crate::sys::{self, monotonic_ns};
 use bowden_interfaces::{
-    services, ClockTick, ComponentStatus, JointCommand, JointEstimate, JointTarget, MarkerSet, MotorCommand,
-    PlantState, RgbdFrameHeader, SafetyCommand, MAX_JOINTS,
+    services, ClockTick, ComponentStatus, JointCommand, JointEstimate, JointTarget, MarkerSet, ModelUpdate,
+    MotorCommand, PlantState, RgbdFrameHeader, SafetyCommand, MAX_JOINTS,
 };
 use serde::Serialize;
 use std::path::Path;
@@ -101,6 +101,7 @@ fn sink_for(ports: &PortContext, service: &str, max_frame: usize) -> Result<Opti
         services::COMPONENT_STATUS => s::<ComponentStatus>(ports, service),
         services::SAFETY => s::<SafetyCommand>(ports, service),
         services::CLOCK => s::<ClockTick>(ports, service),
+        services::MODEL_UPDATE => s::<ModelUpdate>(ports, service),
         services::RGBD_FRAME => Ok(Some(Box::new(FrameSink {
             out: ports.frame_output(service, max_frame.max(1))?,
             wake: ports.notifier(service)?,

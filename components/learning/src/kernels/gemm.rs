@@ -6,6 +6,14 @@
 //! masks at the right edge, A broadcast); the sizes here (≤ 512 wide, K ≤ a few thousand)
 //! keep B's panel in L1/L2, so no packing. The portable path is a plain loop the compiler
 //! vectorises for the baseline target.
+//!
+//! Why not faer: at the shapes an LSTM step uses (benches/gemm.rs; best of 15 alternating
+//! rounds on the 2-core AVX-512 machine) this kernel runs at 52–56 G multiply-adds/s per core,
+//! close to the ~58 G/s FMA peak, and faer 0.24.4's `matmul` (Par::Seq, same buffers) takes
+//! 4–9 % longer on the recurrent products (16×512×128, 16×128×512: two thirds of the
+//! epoch's arithmetic), 8–17 % longer on the head and dW_ihᵀ, and ties (±3 %) on dW_hh and
+//! the input projections. So the kernels call only [`gemm_acc`]; the `faer` feature keeps
+//! faer's product beside it for the comparison.
 
 /// A strided view of A: element (i, k) is `data[i * rs + k * cs]`.
 #[derive(Clone, Copy)]
@@ -51,6 +59,35 @@ fn check_bounds(m: usize, n: usize, k: usize, a: StridedA<'_>, b: &[f32], ldb: u
         c.len(),
         c_last + 1
     );
+}
+
+/// The same product through faer 0.24's `matmul` (f32, sequential: the caller's shards are
+/// the threads, so faer must not start its own). Views are built over the caller's buffers
+/// with their real strides; nothing is copied or allocated here. Only for the comparison at
+/// the training shapes (`cargo bench -p bowden-learning --features faer --bench gemm`) and
+/// its test: the kernels call [`gemm_acc`].
+#[cfg(feature = "faer")]
+#[allow(clippy::too_many_arguments)]
+pub fn gemm_acc_faer(m: usize, n: usize, k: usize, a: StridedA<'_>, b: &[f32], ldb: usize, c: &mut [f32], ldc: usize) {
+    use faer::{Accum, MatMut, MatRef, Par};
+    if m == 0 || n == 0 || k == 0 {
+        return;
+    }
+    check_bounds(m, n, k, a, b, ldb, c, ldc);
+    let lhs = if a.cs == 1 {
+        MatRef::from_row_major_slice_with_stride(a.data, m, k, a.rs)
+    } else if a.rs == 1 {
+        MatRef::from_column_major_slice_with_stride(a.data, m, k, a.cs)
+    } else {
+        // SAFETY: `check_bounds` proved the last element (m−1, k−1) lies inside `a.data`,
+        // and every stride is non-negative, so every element does.
+        unsafe { MatRef::from_raw_parts(a.data.as_ptr(), m, k, a.rs as isize, a.cs as isize) }
+    };
+    let rhs = MatRef::from_row_major_slice_with_stride(b, k, n, ldb);
+    // Not `MatMut::from_row_major_slice_with_stride_mut`: in faer 0.24.4 it builds the view
+    // with strides (1, row_stride), i.e. column-major, and the product writes out of bounds.
+    let dst = MatMut::from_column_major_slice_with_stride_mut(c, n, m, ldc).transpose_mut();
+    faer::linalg::matmul::matmul(dst, Accum::Add, lhs, rhs, 1.0f32, Par::Seq);
 }
 
 /// The baseline path (also the reference the tests hold the AVX-512 path to).
@@ -257,10 +294,18 @@ mod tests {
                 gemm_acc(m, n, k, av, &b, ldb, &mut fast, ldc);
                 let mut port = c0.clone();
                 gemm_portable(m, n, k, av, &b, ldb, &mut port, ldc);
+                #[cfg(feature = "faer")]
+                let viafaer = {
+                    let mut c = c0.clone();
+                    gemm_acc_faer(m, n, k, av, &b, ldb, &mut c, ldc);
+                    c
+                };
                 for i in 0..want.len() {
                     let tol = 1e-5 * (1.0 + k as f32).sqrt() * 4.0;
                     assert!((fast[i] - want[i]).abs() < tol, "{m}×{n}×{k} fast[{i}]");
                     assert!((port[i] - want[i]).abs() < tol, "{m}×{n}×{k} portable[{i}]");
+                    #[cfg(feature = "faer")]
+                    assert!((viafaer[i] - want[i]).abs() < tol, "{m}×{n}×{k} faer[{i}]");
                 }
                 // Padding columns of C (j ≥ n) are untouched.
                 for i in 0..m {

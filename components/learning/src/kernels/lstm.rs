@@ -43,8 +43,8 @@ pub struct LstmWork {
     dc: Vec<f32>,
     /// Input gradients, `[T][b][J]`.
     pub dxt: Vec<f32>,
-    drt: Vec<f32>,
     dwt: Vec<f32>,
+    colsum: Vec<f32>,
     zeros: Vec<f32>,
 }
 
@@ -62,8 +62,8 @@ impl LstmWork {
             dh: vec![0.0; cap * h],
             dc: vec![0.0; cap * h],
             dxt: vec![0.0; t * cap * j],
-            drt: vec![0.0; h * 4 * h],
             dwt: vec![0.0; j * 4 * h],
+            colsum: vec![0.0; 4 * h],
             zeros: vec![0.0; cap * h],
         }
     }
@@ -86,11 +86,20 @@ pub struct LstmPrepared {
     pub bias: Vec<f32>,
 }
 
+/// `dst` (`[cols][rows]`) = `src` (`[rows][cols]`)ᵀ.
 pub fn transpose(src: &[f32], rows: usize, cols: usize, dst: &mut Vec<f32>) {
+    // In 16 × 16 blocks: row by row, the writes run down a column of `dst` with a stride of
+    // `rows` floats (2 KiB for W_hh), whose lines all fall in the same few L1 sets and evict
+    // each other before the next row fills them.
+    const BS: usize = 16;
     dst.resize(rows * cols, 0.0);
-    for r in 0..rows {
-        for c in 0..cols {
-            dst[c * rows + r] = src[r * cols + c];
+    for r0 in (0..rows).step_by(BS) {
+        for c0 in (0..cols).step_by(BS) {
+            for r in r0..(r0 + BS).min(rows) {
+                for c in c0..(c0 + BS).min(cols) {
+                    dst[c * rows + r] = src[r * cols + c];
+                }
+            }
         }
     }
 }
@@ -307,25 +316,28 @@ pub fn backward(
             );
         }
     }
-    // dW_hhᵀ = Σ_{t≥1} h_{t−1}ᵀ dg_t  (rows (t, r) of hs[1..T] pair with dg[1..T])
-    let drt = &mut work.drt;
-    drt.fill(0.0);
+    // dW_hh (`[4H][H]`, the parameter's own layout) = Σ_{t≥1} dg_tᵀ h_{t−1}: rows (t, r) of
+    // dg[1..T] pair with hs[1..T]. Accumulated straight into the gradient, so no transposed
+    // copy to add back; each element sums the same products in the same order as
+    // h_{t−1}ᵀ dg_t would, and the gradient arrives zeroed, so the bits do not change.
     if t > 1 {
         gemm_acc(
-            h,
             g4,
+            h,
             (t - 1) * b,
             StridedA {
-                data: &work.hs[b * h..t * b * h],
+                data: &work.dg[b * g4..t * b * g4],
                 rs: 1,
-                cs: h,
+                cs: g4,
             },
-            &work.dg[b * g4..t * b * g4],
-            g4,
-            drt,
-            g4,
+            &work.hs[b * h..t * b * h],
+            h,
+            grads.w_hh,
+            h,
         );
     }
+    // dW_ihᵀ (`[J][4H]`) then added transposed: with J = 5 columns the `[4H][J]` product
+    // would use 5 of every 16 vector lanes.
     let dwt = &mut work.dwt;
     dwt.fill(0.0);
     gemm_acc(
@@ -343,14 +355,11 @@ pub fn backward(
         g4,
     );
     for r in 0..g4 {
-        for c in 0..h {
-            grads.w_hh[r * h + c] += drt[c * g4 + r];
-        }
         for c in 0..j {
             grads.w_ih[r * j + c] += dwt[c * g4 + r];
         }
     }
-    column_sums_into(&work.dg[..t * b * g4], g4, grads.b_ih, grads.b_hh);
+    column_sums_into(&work.dg[..t * b * g4], g4, &mut work.colsum, grads.b_ih, grads.b_hh);
     if want_dx {
         let dx = &mut work.dxt[..t * b * j];
         dx.fill(0.0);
@@ -372,9 +381,10 @@ pub fn backward(
 }
 
 simd_fn! {
-    /// a[c] += Σ_rows m[row][c]; b[c] += the same.
-    fn column_sums_into(m: &[f32], cols: usize, a: &mut [f32], b: &mut [f32]) {
-        let mut acc = vec![0.0f32; cols];
+    /// a[c] += Σ_rows m[row][c]; b[c] += the same (`acc`: `cols` floats of scratch).
+    fn column_sums_into(m: &[f32], cols: usize, acc: &mut [f32], a: &mut [f32], b: &mut [f32]) {
+        let acc = &mut acc[..cols];
+        acc.fill(0.0);
         for row in m.chunks_exact(cols) {
             for (s, v) in acc.iter_mut().zip(row) {
                 *s += v;

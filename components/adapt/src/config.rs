@@ -1,0 +1,131 @@
+//! `[adapt]`: the settings of online adaptation (configs/adapt.toml), validated on load.
+
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Settings of the `adapt` node. Defaults are those of configs/adapt.toml.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AdaptConfig {
+    /// Rows a fine-tune and its validation use: the newest this many.
+    pub window_rows: usize,
+    /// Rows gathered between two staleness checks.
+    pub check_every_rows: usize,
+    /// Newest fraction of the window held out: never trained on, used to rate the models in
+    /// use and the fine-tuned ones.
+    pub holdout_fraction: f64,
+    /// Last fraction of the training part used for early stopping of the fine-tune.
+    pub early_stop_fraction: f64,
+    /// Stale when the held-out error of the forward model in use exceeds this × the reference.
+    pub stale_factor: f64,
+    /// ... and this absolute error, deg (noise alone never triggers a fine-tune).
+    pub stale_min_deg: f64,
+    /// A fine-tuned model replaces the one in use only when its held-out error is lower by at
+    /// least this fraction.
+    pub min_gain: f64,
+    /// A new row is kept only if its command moved at least this far (max over joints, deg)
+    /// from the previous kept row's.
+    pub min_step_deg: f64,
+    /// Fine-tuning: epochs, early-stopping patience, learning rate, batch size, seed.
+    pub epochs: usize,
+    pub patience: usize,
+    pub lr: f64,
+    pub batch_size: usize,
+    pub seed: u64,
+    /// Which models are fine-tuned: "forward", "inverse" or both.
+    pub directions: Vec<String>,
+}
+
+impl Default for AdaptConfig {
+    fn default() -> Self {
+        Self {
+            window_rows: 200,
+            check_every_rows: 40,
+            holdout_fraction: 0.25,
+            early_stop_fraction: 0.2,
+            stale_factor: 1.3,
+            stale_min_deg: 0.5,
+            min_gain: 0.05,
+            min_step_deg: 0.05,
+            epochs: 40,
+            patience: 8,
+            lr: 3e-4,
+            batch_size: 16,
+            seed: 1,
+            directions: vec!["forward".into(), "inverse".into()],
+        }
+    }
+}
+
+impl AdaptConfig {
+    /// Reads and validates a TOML file whose `[adapt]` table (or whole body) holds the settings.
+    pub fn load(path: &Path) -> Result<Self, String> {
+        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        Self::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()))
+    }
+
+    pub fn from_toml(text: &str) -> Result<Self, String> {
+        let v: toml::Table = toml::from_str(text).map_err(|e| e.to_string().replace('\n', " "))?;
+        let table = match v.get("adapt") {
+            Some(toml::Value::Table(t)) => t.clone(),
+            Some(_) => return Err("`adapt` must be a table".into()),
+            None => v,
+        };
+        let c: AdaptConfig = table
+            .try_into()
+            .map_err(|e: toml::de::Error| e.to_string().replace('\n', " "))?;
+        c.validate()?;
+        Ok(c)
+    }
+
+    pub fn validate(&self) -> Result<(), String> {
+        let frac = |name: &str, v: f64| {
+            if v > 0.0 && v < 1.0 {
+                Ok(())
+            } else {
+                Err(format!("[adapt] {name} = {v}: must be in (0, 1)"))
+            }
+        };
+        frac("holdout_fraction", self.holdout_fraction)?;
+        frac("early_stop_fraction", self.early_stop_fraction)?;
+        frac("min_gain", self.min_gain)?;
+        if self.window_rows < 20 {
+            return Err(format!("[adapt] window_rows = {}: at least 20", self.window_rows));
+        }
+        if self.check_every_rows == 0 {
+            return Err("[adapt] check_every_rows must be at least 1".into());
+        }
+        if !(self.stale_factor >= 1.0 && self.stale_factor.is_finite()) {
+            return Err(format!("[adapt] stale_factor = {}: must be ≥ 1", self.stale_factor));
+        }
+        for (n, v) in [
+            ("stale_min_deg", self.stale_min_deg),
+            ("min_step_deg", self.min_step_deg),
+        ] {
+            if !(v >= 0.0 && v.is_finite()) {
+                return Err(format!("[adapt] {n} = {v}: must be ≥ 0"));
+            }
+        }
+        if self.epochs == 0 || self.batch_size == 0 || self.patience == 0 {
+            return Err("[adapt] epochs, patience and batch_size must be at least 1".into());
+        }
+        if !(self.lr > 0.0 && self.lr.is_finite()) {
+            return Err(format!("[adapt] lr = {}: must be positive", self.lr));
+        }
+        if self.directions.is_empty() {
+            return Err("[adapt] directions: name forward, inverse or both".into());
+        }
+        for d in &self.directions {
+            if d != "forward" && d != "inverse" {
+                return Err(format!("[adapt] directions: `{d}` is not forward or inverse"));
+            }
+        }
+        Ok(())
+    }
+
+    pub fn adapts(&self, forward: bool) -> bool {
+        self.directions
+            .iter()
+            .any(|d| d == if forward { "forward" } else { "inverse" })
+    }
+}

@@ -1,0 +1,48 @@
+#!/usr/bin/env python3
+"""Tables of docs/results/adapt/README.md from the session reports run.sh wrote."""
+import json, os, re, sys
+
+OUT = os.path.dirname(os.path.abspath(__file__))
+
+
+def session(name):
+    md = open(os.path.join(OUT, name, "session.md")).read()
+    truth = md.split("## Before and after the slack — simulator truth")[1]
+    row = [l for l in truth.splitlines() if l.startswith("| newton")][0].split("|")
+    before, end = float(row[2]), float(row[5])
+    table = md.split("## Error over time — tip position error [mm], simulator truth")[1].split("\n## ")[0]
+    windows = []
+    for l in table.splitlines():
+        m = re.match(r"\| (\d+) \| ([\d.]+)–([\d.]+)(.*?) \| ([\d.]+) \|", l)
+        if m:
+            windows.append((float(m.group(2)), float(m.group(3)), float(m.group(5))))
+    return before, end, windows
+
+
+def swaps(name):
+    p = os.path.join(OUT, name, "adapt-newton", "adapt.jsonl")
+    if not os.path.exists(p):
+        return None
+    recs = [json.loads(l) for l in open(p)]
+    return recs
+
+
+print("| scenario | controller | before slack [mm] | end, feed-forward [mm] | end, adapted [mm] | end vs before, adapted | gain lost to slack recovered | swaps (checks) | first window back within 10 % after onset |")
+print("|---|---|---:|---:|---:|---:|---:|---:|---|")
+for s, onset in [("slip", 120.0), ("creep", 120.0), ("lugre-creep", 120.0)]:
+    for c in ["tcn", "accurate"]:
+        ff, ad = f"{s}-{c}-ff", f"{s}-{c}-adapt"
+        if not (os.path.exists(os.path.join(OUT, ff, "session.md")) and os.path.exists(os.path.join(OUT, ad, "session.md"))):
+            continue
+        b, e_ff, _ = session(ff)
+        b2, e_ad, w = session(ad)
+        recs = swaps(ad) or []
+        n_sw = sum(r["decision"] == "swapped" for r in recs)
+        back = "never"
+        after = [x for x in w if x[0] >= onset]
+        for k, x in enumerate(after):
+            if all(y[2] <= 1.1 * b2 for y in after[k:]):
+                back = f"{x[0]:.0f}–{x[1]:.0f} s ({x[0] - onset:.0f} s after onset)"
+                break
+        rec = (e_ff - e_ad) / (e_ff - b) if e_ff > b else float("nan")
+        print(f"| {s} | {c} | {b:.2f} | {e_ff:.2f} | {e_ad:.2f} | {100 * (e_ad / b2 - 1):+.0f} % | {100 * rec:.0f} % | {n_sw} ({len(recs)}) | {back} |")
