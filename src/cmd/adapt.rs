@@ -5,7 +5,7 @@
 
 use anyhow::{bail, Context, Result};
 use bowden_adapt::{CheckRecord, SwapRecord};
-use bowden_compensator::{Compensator, LoadOptions, Loaded, LoaderSettings, ModelLoader, StepOutput};
+use bowden_compensator::{Compensator, Loaded, LoaderSettings, ModelLoader, StepOutput};
 use bowden_interfaces::{fnv1a64, ModelUpdate};
 use bowden_runtime::alloc;
 use clap::{Args, Subcommand};
@@ -190,7 +190,6 @@ pub fn bench(c: BenchCommand) -> Result<()> {
     let mut comp = Compensator::from_config(&cfg, &robot).context("loading the controller")?;
     comp.set_budget_ns(0);
     comp.set_period_ns(a.period_us * 1000);
-    let (fwd_l, inv_l) = comp.seq_lens();
     // One generation directory holding the controller's own files: every swap loads and checks
     // them afresh (the same weights, so the commands do not change).
     let gen = TempDir::new()?;
@@ -209,19 +208,7 @@ pub fn bench(c: BenchCommand) -> Result<()> {
     if !u.set_dir(&gen.path().display().to_string()) {
         bail!("the temporary directory's path is longer than 255 bytes");
     }
-    let loader = ModelLoader::spawn(LoaderSettings {
-        load: LoadOptions {
-            check_windows: cfg.load_check.windows,
-            tolerance_deg: cfg.load_check.tolerance_deg,
-            ..LoadOptions::default()
-        },
-        fwd_l,
-        inv_l,
-        joints: comp.joints(),
-        evaluator: cfg.evaluator,
-        who: "bench swap".into(),
-        verbose: false,
-    })?;
+    let loader = ModelLoader::spawn(LoaderSettings::for_compensator(&comp, &cfg, "bench swap", false))?;
     let targets = bowden_compensator::bench::random_trajectory(&robot, a.cycles as usize + 1, a.fine_deg_per_step, 7);
     let new_h = || Histogram::<u64>::new_with_bounds(1, 10_000_000_000, 3).expect("valid bounds");
     let (mut normal, mut advance, mut swap) = (new_h(), new_h(), new_h());

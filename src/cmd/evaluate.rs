@@ -90,6 +90,12 @@ pub struct EvaluateArgs {
     /// run starts from the controller's models, its generations go to `<report>/adapt-<controller>`.
     #[arg(long, value_name = "FILE")]
     pub adapt: Option<PathBuf>,
+    /// Camera frame rate, fps. Default: one frame per held point, on its last tick (the paper
+    /// measured each command once). A multiple of that rate whose frame period divides the
+    /// hold (e.g. 10 = a frame every 100 ms tick) gives the compensator's vision feedback
+    /// frames to act on during the hold; the point is still measured on its last tick.
+    #[arg(long, value_name = "FPS")]
+    pub camera_fps: Option<f64>,
 }
 
 /// The arguments with their files found (`crate::home`); the other fields through `Deref`.
@@ -231,7 +237,28 @@ fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: 
     }
     let work_dir = report.join("pipelines");
     let tick_ns = PipelineConfig::load(&a.config.path, &Overrides::default())?.period_ns();
-    let fps = camera_fps_for(a.settle_ticks, tick_ns);
+    let per_point = camera_fps_for(a.settle_ticks, tick_ns);
+    let fps = match a.camera_fps {
+        None => per_point,
+        Some(f) => {
+            // Frames must fall on every point's last tick: f = k × (one per point), k | settle ticks.
+            let k = (f / per_point).round();
+            if !(f.is_finite() && k >= 1.0 && (f - k * per_point).abs() <= 1e-9 * f && a.settle_ticks % (k as u32) == 0)
+            {
+                bail!(
+                    "--camera-fps {f}: must be k × {per_point} fps (one frame per point) with k dividing --settle-ticks {} \
+                     (frames must fall on every point's last tick); e.g. {}",
+                    a.settle_ticks,
+                    (1..=a.settle_ticks)
+                        .filter(|k| a.settle_ticks % k == 0)
+                        .map(|k| format!("{}", f64::from(k) * per_point))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                );
+            }
+            k * per_point
+        }
+    };
     let mut pipelines = Vec::new();
     for c in &a.controllers {
         let mut set = vec![

@@ -1,6 +1,7 @@
 //! Adapt node: `JointCommand` + `JointEstimate` (read passively: the chain never waits for this
 //! node) → `bowden_adapt::Adapter` → `ModelUpdate` when a fine-tuned model validated better.
 //!
+//! Rows are the last usable frame of each held target, paired with the command of its tick.
 //! In lockstep a due check runs inside the tick (the whole pipeline waits for it, so runs
 //! reproduce byte for byte); in real time it runs on a worker thread and the node goes on
 //! draining its inputs. The estimate of tick k is paired with the command of tick k (the
@@ -9,7 +10,7 @@
 
 use bowden_adapt::{AdaptConfig, Adapter, Decision, JobResult, SwapRecord};
 use bowden_compensator::ControllerConfig;
-use bowden_interfaces::{fnv1a64, services, JointCommand, JointEstimate, ModelUpdate};
+use bowden_interfaces::{fnv1a64, services, JointCommand, JointEstimate, ModelUpdate, MAX_JOINTS};
 use bowden_runtime::ports::{Input, Output};
 use bowden_runtime::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
 use serde::Deserialize;
@@ -51,6 +52,8 @@ struct AdaptStage {
     out: Output<ModelUpdate>,
     /// Recent commands: (tick, angles), to pair each estimate with the command of its frame.
     recent: VecDeque<(u64, JointCommand)>,
+    /// The newest usable frame of the target being held: (tick, command, estimate).
+    held: Option<(u64, JointCommand, [f64; MAX_JOINTS])>,
     worker: Option<JoinHandle<JobResult>>,
     announce_at_start: bool,
     drill_every_ticks: u64,
@@ -102,6 +105,7 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         estimates: env.ports.input(services::JOINT_ESTIMATE, 64)?,
         out: env.ports.output(services::MODEL_UPDATE)?,
         recent: VecDeque::with_capacity(128),
+        held: None,
         worker: None,
         drill_every_ticks: p.drill_every_ticks,
         drill_generation: 0,
@@ -113,6 +117,15 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
 }
 
 impl AdaptStage {
+    fn push_row(&mut self, tick: u64, c: &JointCommand, q_phy: &[f64; MAX_JOINTS]) {
+        let j = self.adapter.joints();
+        // The compensator's prediction, when its mode makes one (mode ≠ uncalibrated).
+        let pred = (c.mode != 0).then_some(&c.q_predicted_deg[..j]);
+        if let Err(why) = self.adapter.push(tick, &c.q_cmd_deg[..j], &q_phy[..j], pred) {
+            eprintln!("{}: row refused: {why}", self.name);
+        }
+    }
+
     fn publish(&mut self, s: &SwapRecord, cx: &StepCx) -> Result<(), StageError> {
         let mut u = ModelUpdate {
             generation: s.generation,
@@ -226,14 +239,17 @@ impl Stage for AdaptStage {
                 self.unpaired += 1;
                 continue;
             };
-            // The compensator's prediction, when its mode makes one (mode ≠ uncalibrated).
-            let pred = (c.mode != 0).then_some(&c.q_predicted_deg[..j]);
-            if let Err(why) = self
-                .adapter
-                .push(e.header.tick, &c.q_cmd_deg[..j], &e.q_phy_deg[..j], pred)
-            {
-                eprintln!("{}: row refused: {why}", self.name);
+            // A row is the LAST frame of each held target (the most settled, as the dataset
+            // measured after each command's pause): a frame replaces the held one while the
+            // target stays, and a new target releases the held frame as a row. With one frame
+            // per target, or a target that moves every cycle, every frame becomes a row.
+            let c = *c;
+            if let Some((ht, hc, hp)) = self.held.take() {
+                if hc.q_desired_deg[..j] != c.q_desired_deg[..j] {
+                    self.push_row(ht, &hc, &hp);
+                }
             }
+            self.held = Some((e.header.tick, c, e.q_phy_deg));
         }
         if let Some(w) = &self.worker {
             if w.is_finished() {

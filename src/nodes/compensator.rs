@@ -10,8 +10,8 @@
 //! tick k + 1 (the estimator runs after the compensator within a tick), deterministically.
 
 use bowden_compensator::{
-    ApplyTo, Compensator, ControllerConfig, Dither, Feedback, LoadOptions, Loaded, LoaderSettings, Mode, ModelLoader,
-    StepOutput,
+    ApplyTo, Compensator, ControllerConfig, Dither, Feedback, Loaded, LoaderSettings, Mode, ModelLoader, PrefixSync,
+    PrefixWorkerOptions, StepOutput,
 };
 use bowden_interfaces::{services, JointCommand, JointEstimate, JointTarget, ModelUpdate, MAX_JOINTS};
 use bowden_runtime::ports::{Input, Output};
@@ -28,6 +28,10 @@ struct Params {
     /// Overrides the config's mode: uncalibrated | paper | newton.
     #[serde(default)]
     mode: Option<String>,
+    /// Real time: compute the window prefixes on a worker thread, off the cycle (default
+    /// true; lockstep always computes them in the step).
+    #[serde(default)]
+    prefix_worker: Option<bool>,
 }
 
 /// The vision-feedback path of the node.
@@ -91,6 +95,32 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         // A time budget would make results depend on the machine's speed.
         comp.set_budget_ns(0);
     }
+    if !env.lockstep() && cfg.mode != Mode::Uncalibrated && p.prefix_worker.unwrap_or(true) {
+        // The worker inherits this thread's placement (the process's real-time settings are
+        // applied after the stages are built): it moves to the CPUs the process is not pinned
+        // to, where it cannot delay the cycle, and stays under SCHED_OTHER.
+        let pinned: Vec<usize> = env
+            .pipeline
+            .processes
+            .iter()
+            .find(|pr| pr.stages.iter().any(|&i| env.pipeline.stages[i].name == env.spec.name))
+            .and_then(|pr| pr.rt.as_ref())
+            .map(|rt| rt.cpus.clone())
+            .unwrap_or_default();
+        let n_cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let others: Vec<usize> = (0..n_cpus).filter(|c| !pinned.contains(c)).collect();
+        let on_start: Option<Box<dyn FnOnce() + Send>> = (!pinned.is_empty() && !others.is_empty()).then(|| {
+            Box::new(move || {
+                let _ = bowden_runtime::rt::pin_to_cpus(&others);
+            }) as Box<dyn FnOnce() + Send>
+        });
+        comp.start_prefix_worker(PrefixWorkerOptions {
+            sync: PrefixSync::Newest,
+            name: format!("{}-prefix", env.spec.name),
+            on_start,
+        })
+        .map_err(|e| env.error(format!("prefix worker thread: {e}")))?;
+    }
     let fb_cfg = &cfg.feedback;
     let applied = fb_cfg.enabled && (cfg.mode != Mode::Uncalibrated || fb_cfg.in_uncalibrated);
     let feedback = if applied {
@@ -108,20 +138,7 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         .iter()
         .any(|s| s.outputs.iter().any(|o| o == services::MODEL_UPDATE));
     let swap = if announced && cfg.mode != Mode::Uncalibrated {
-        let (fwd_l, inv_l) = comp.seq_lens();
-        let settings = LoaderSettings {
-            load: LoadOptions {
-                check_windows: cfg.load_check.windows,
-                tolerance_deg: cfg.load_check.tolerance_deg,
-                ..LoadOptions::default()
-            },
-            fwd_l,
-            inv_l,
-            joints: comp.joints(),
-            evaluator: cfg.evaluator,
-            who: env.spec.name.clone(),
-            verbose: true,
-        };
+        let settings = LoaderSettings::for_compensator(&comp, &cfg, &env.spec.name, true);
         Some(SwapPath {
             updates: env.ports.input(services::MODEL_UPDATE, 8)?,
             loader: ModelLoader::spawn(settings).map_err(|e| env.error(format!("model loader thread: {e}")))?,

@@ -237,6 +237,28 @@ class ClockTick(_Sample):
     ]
 
 
+class ModelUpdate(_Sample):
+    """New model weights from an ``adapt`` node (``bowden/model_update``, 336 bytes): the ONNX
+    files ``dir/fwd.onnx`` and ``dir/inv.onnx`` and their FNV-1a 64 hashes (0 = not part of
+    this update)."""
+
+    _fields_ = [
+        ("header", SampleHeader),
+        ("generation", u64),
+        ("fwd_hash", u64),
+        ("inv_hash", u64),
+        ("fwd_val_before_deg", f64),
+        ("fwd_val_after_deg", f64),
+        ("inv_val_before_deg", f64),
+        ("inv_val_after_deg", f64),
+        ("dir", ctypes.c_uint8 * 256),  # absolute, NUL-padded UTF-8
+    ]
+
+    def directory(self) -> str:
+        """The directory as text."""
+        return bytes(self.dir).split(b"\0", 1)[0].decode("utf-8", "replace")
+
+
 #: Every sample type, in LAYOUT.md order.
 ALL_TYPES = (
     SampleHeader,
@@ -250,6 +272,7 @@ ALL_TYPES = (
     ComponentStatus,
     SafetyCommand,
     ClockTick,
+    ModelUpdate,
 )
 
 #: Size in bytes of every type, as LAYOUT.md and the Rust compile-time assertions state.
@@ -265,6 +288,7 @@ SIZES = {
     ComponentStatus: 128,
     SafetyCommand: 32,
     ClockTick: 48,
+    ModelUpdate: 336,
 }
 
 for _t, _n in SIZES.items():

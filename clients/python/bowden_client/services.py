@@ -22,6 +22,7 @@ JOINT_ESTIMATE = "bowden/joint_estimate"
 COMPONENT_STATUS = "bowden/component_status"
 SAFETY = "bowden/safety"
 CLOCK = "bowden/clock"
+MODEL_UPDATE = "bowden/model_update"
 
 #: Every service name, in ``services::ALL`` order.
 ALL = (
@@ -35,6 +36,7 @@ ALL = (
     COMPONENT_STATUS,
     SAFETY,
     CLOCK,
+    MODEL_UPDATE,
 )
 
 #: Payload type of every fixed-size service. ``bowden/rgbd_frame`` carries a ``[u8]`` slice with
@@ -49,6 +51,7 @@ PAYLOAD = {
     COMPONENT_STATUS: layout.ComponentStatus,
     SAFETY: layout.SafetyCommand,
     CLOCK: layout.ClockTick,
+    MODEL_UPDATE: layout.ModelUpdate,
 }
 
 
@@ -108,6 +111,7 @@ KIND_INPUTS = {
     "plant": (MOTOR_COMMAND,),
     "camera": (PLANT_STATE,),
     "estimator": (RGBD_FRAME,),
+    "adapt": (),
     "recorder": (),
 }
 KIND_OUTPUTS = {
@@ -117,6 +121,7 @@ KIND_OUTPUTS = {
     "plant": (PLANT_STATE,),
     "camera": (RGBD_FRAME,),
     "estimator": (MARKER_SET, JOINT_ESTIMATE),
+    "adapt": (MODEL_UPDATE,),
     "recorder": (),
 }
 

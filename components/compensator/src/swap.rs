@@ -37,6 +37,27 @@ pub struct LoaderSettings {
     pub verbose: bool,
 }
 
+impl LoaderSettings {
+    /// What models swapped into `comp` (built from `cfg`) must be, and how they are checked and
+    /// evaluated: as `cfg` loaded its own.
+    pub fn for_compensator(comp: &crate::Compensator, cfg: &crate::ControllerConfig, who: &str, verbose: bool) -> Self {
+        let (fwd_l, inv_l) = comp.seq_lens();
+        Self {
+            load: LoadOptions {
+                check_windows: cfg.load_check.windows,
+                tolerance_deg: cfg.load_check.tolerance_deg,
+                ..LoadOptions::default()
+            },
+            fwd_l,
+            inv_l,
+            joints: comp.joints(),
+            evaluator: cfg.evaluator,
+            who: who.to_string(),
+            verbose,
+        }
+    }
+}
+
 /// The loader's answer to one update.
 pub enum Loaded {
     Ready(Box<PreparedModels>),

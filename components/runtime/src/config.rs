@@ -749,10 +749,12 @@ impl PipelineConfig {
             let info = kind_info(&stages[idxs[0]].kind);
             let periodic = first.period_us.is_some() || info.map(|k| k.periodic).unwrap_or(false);
             let activation = if periodic {
-                let default_period = if stages[idxs[0]].kind == "recorder" {
-                    10_000
-                } else {
-                    rt.period_us
+                // Neither the recorder nor adapt is part of the control cycle: they drain their
+                // inputs (64 deep) at their own pace.
+                let default_period = match stages[idxs[0]].kind.as_str() {
+                    "recorder" => 10_000,
+                    "adapt" => 20_000,
+                    _ => rt.period_us,
                 };
                 Activation::Periodic {
                     period_ns: first.period_us.unwrap_or(default_period) * 1000,

@@ -6,6 +6,7 @@ OUT = os.path.dirname(os.path.abspath(__file__))
 
 
 def session(name):
+    """(before, end) tip position error by truth, mm, and the windows (t0, t1, mm), from session.md."""
     md = open(os.path.join(OUT, name, "session.md")).read()
     truth = md.split("## Before and after the slack — simulator truth")[1]
     row = [l for l in truth.splitlines() if l.startswith("| newton")][0].split("|")
