@@ -1,6 +1,7 @@
 //! Compensator hot paths (`cargo bench --bench compensator`): the incremental TCN evaluator
 //! (one trial, one trial with the Jacobian, full and shifted prefix), tract's full evaluation
-//! of the same window, and whole compensation steps per mode. Percentiles over ≥ 100k steps
+//! of the same window, and whole compensation steps per mode; on test fixtures and on the
+//! shipped models. Percentiles over ≥ 100k steps
 //! with the naive loop beside them: `bowden bench compensate`.
 
 use bowden_compensator::bench::random_trajectory;
@@ -19,12 +20,21 @@ fn evaluators(c: &mut Criterion) {
     let traj = random_trajectory(&robot, 200, 3.0 * 5f64.sqrt(), 1);
     let window: Vec<f64> = traj[..80].iter().flatten().copied().collect();
     let last = [10.0, -5.0, 3.0, -8.0, 9.0];
-    for name in [
-        "tcn-linear2_forward_L80_J5_s0",
-        "fnn_forward_L80_J5_s0",
-        "lstm_forward_L80_J5_s0",
+    let shipped = |f: &str| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models").join(f);
+    for (name, path) in [
+        (
+            "tcn-linear2_forward_L80_J5_s0",
+            fixture("tcn-linear2_forward_L80_J5_s0"),
+        ),
+        ("fnn_forward_L80_J5_s0", fixture("fnn_forward_L80_J5_s0")),
+        ("lstm_forward_L80_J5_s0", fixture("lstm_forward_L80_J5_s0")),
+        // The shipped pairs: controller.toml (TCN both ways), controller-accurate.toml (TCN
+        // forward, LSTM inverse: its prefix is the one the prefix worker takes off the cycle).
+        ("shipped tcn_forward_L80", shipped("tcn_forward_L80.onnx")),
+        ("shipped tcn_inverse_L80", shipped("tcn_inverse_L80.onnx")),
+        ("shipped lstm_inverse_L80", shipped("lstm_inverse_L80.onnx")),
     ] {
-        let m = Model::load(fixture(name)).expect("fixture loads");
+        let m = Model::load(&path).expect("model loads");
         let mut inc = m.incremental().expect("recognised");
         inc.set_history(&window[..79 * 5]);
         let mut out = [0.0; 5];

@@ -106,6 +106,17 @@ pub struct BenchArgs {
     /// Pin the benchmark thread to this CPU.
     #[arg(long)]
     cpu: Option<usize>,
+    /// Run the benchmark thread under SCHED_FIFO at this priority, as the real-time loop runs
+    /// (processes at lower priority, compilers included, then cannot preempt a step). The
+    /// prefix worker stays under SCHED_OTHER. Back-to-back runs at 100 % CPU are throttled by
+    /// the kernel's RT bandwidth limit (50 ms per second by default): use with --paced.
+    #[arg(long, value_name = "PRIO")]
+    fifo: Option<u8>,
+    /// Release one step per control period (the config's output.period_ns, 1 ms) as the
+    /// real-time loop does, instead of back to back (naive tract rows stay back to back). The
+    /// prefix worker's lag is only representative paced.
+    #[arg(long)]
+    paced: bool,
     /// Print JSON instead of the Markdown table.
     #[arg(long)]
     json: bool,
@@ -293,6 +304,11 @@ fn read_targets_named(path: &Path, names: &[String], joints: usize) -> anyhow::R
     })
 }
 
+/// Whether `others` is a proper, non-empty subset of the `n` CPUs (--cpu was given).
+fn a_cpu_pinned(others: &[usize], n: usize) -> bool {
+    !others.is_empty() && others.len() < n
+}
+
 fn pin_to_cpu(cpu: usize) -> anyhow::Result<()> {
     // SAFETY: cpu_set_t is plain data; sched_setaffinity reads it for the calling thread.
     let rc = unsafe {
@@ -331,12 +347,36 @@ pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
     if let Some(cpu) = a.cpu {
         pin_to_cpu(cpu)?;
     }
+    if let Some(prio) = a.fifo {
+        match bowden_runtime::rt::set_fifo(prio) {
+            bowden_runtime::rt::Outcome::Applied => {}
+            o => bail!("--fifo {prio}: SCHED_FIFO {o}"),
+        }
+    }
     let opts = BenchOptions {
         steps: a.steps,
         naive_steps: a.naive_steps,
         seed: a.seed,
         fine_deg_per_step: a.fine_deg_per_step,
         scenarios,
+        paced: a.paced,
+        // The prefix worker as the node places it: on the CPUs other than --cpu, under
+        // SCHED_OTHER (a thread inherits its creator's policy).
+        worker_placement: (a.cpu.is_some() || a.fifo.is_some()).then(|| {
+            let n = std::thread::available_parallelism().map_or(1, |n| n.get());
+            let others: Vec<usize> = (0..n).filter(|&c| Some(c) != a.cpu).collect();
+            let fifo = a.fifo.is_some();
+            std::sync::Arc::new(move || {
+                if a_cpu_pinned(&others, n) {
+                    let _ = bowden_runtime::rt::pin_to_cpus(&others);
+                }
+                if fifo {
+                    let param = libc::sched_param { sched_priority: 0 };
+                    // SAFETY: plain syscall on the calling thread with a valid parameter.
+                    unsafe { libc::sched_setscheduler(0, libc::SCHED_OTHER, &param) };
+                }
+            }) as std::sync::Arc<dyn Fn() + Send + Sync>
+        }),
         config: cfg,
     };
     let bar = progress_bar(bench::total_steps(&opts), "steps");

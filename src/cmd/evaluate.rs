@@ -243,14 +243,17 @@ fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: 
         Some(f) => {
             // Frames must fall on every point's last tick: f = k × (one per point), k | settle ticks.
             let k = (f / per_point).round();
-            if !(f.is_finite() && k >= 1.0 && (f - k * per_point).abs() <= 1e-9 * f && a.settle_ticks % (k as u32) == 0)
+            if !(f.is_finite()
+                && k >= 1.0
+                && (f - k * per_point).abs() <= 1e-9 * f
+                && a.settle_ticks.is_multiple_of(k as u32))
             {
                 bail!(
                     "--camera-fps {f}: must be k × {per_point} fps (one frame per point) with k dividing --settle-ticks {} \
                      (frames must fall on every point's last tick); e.g. {}",
                     a.settle_ticks,
                     (1..=a.settle_ticks)
-                        .filter(|k| a.settle_ticks % k == 0)
+                        .filter(|k| a.settle_ticks.is_multiple_of(*k))
                         .map(|k| format!("{}", f64::from(k) * per_point))
                         .collect::<Vec<_>>()
                         .join(", ")

@@ -486,10 +486,12 @@ pub enum BenchCommand {
         /// Seconds per run.
         #[arg(long, default_value_t = 10.0)]
         seconds: f64,
-        /// Pipeline (real time). Default: both layouts, configs/cycle.toml (one process per
-        /// stage) and configs/cycle-grouped.toml (the control chain in one process).
-        #[arg(long)]
-        config: Option<String>,
+        /// Pipeline(s) (real time), comma-separated, run one after the other in this invocation
+        /// (e.g. configs/cycle-grouped-accurate.toml,configs/cycle-grouped-tcn.toml: the two
+        /// controllers side by side). Default: both layouts, configs/cycle.toml (one process
+        /// per stage) and configs/cycle-grouped.toml (the control chain in one process).
+        #[arg(long, value_delimiter = ',')]
+        config: Option<Vec<String>>,
         /// none, other (load on the CPUs the pipeline is not pinned to), all (every CPU), or
         /// both (= none then other).
         #[arg(long, default_value = "both", value_parser = super::choice(&["none", "other", "all", "both"]), ignore_case = true)]
@@ -506,6 +508,11 @@ pub enum BenchCommand {
         /// Overwrite --json-out if it exists.
         #[arg(long)]
         force: bool,
+        /// Every process prints its report on stderr at the end of a run: per stage the
+        /// compute time of its own steps and its budget overruns (`budget_us`), which
+        /// attribute a deadline miss to the stage that caused it.
+        #[arg(long)]
+        process_summaries: bool,
     },
 }
 
@@ -634,6 +641,7 @@ pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
             json,
             json_out,
             force,
+            process_summaries,
         } => {
             super::refuse_overwrite(json_out.as_slice(), force, "--json-out")?;
             if !(seconds.is_finite() && seconds > 0.0) {
@@ -645,7 +653,7 @@ pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
                 ..Default::default()
             };
             let configs: Vec<String> = match config {
-                Some(c) => vec![c],
+                Some(c) => c,
                 None => vec!["configs/cycle.toml".into(), "configs/cycle-grouped.toml".into()],
             };
             let scheds: &[bool] = match sched.as_str() {
@@ -713,7 +721,8 @@ pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
                 for (label, l) in &loads {
                     let label = format!("{layout}, {label}");
                     eprintln!("bench cycle: {label}, {seconds} s ...");
-                    let r = bench::cycle_run(cfg, &launch, seconds, l, &label).context("cycle run")?;
+                    let r =
+                        bench::cycle_run(cfg, &launch, seconds, l, &label, process_summaries).context("cycle run")?;
                     results.push(r);
                 }
             }

@@ -28,8 +28,10 @@ struct Params {
     /// Overrides the config's mode: uncalibrated | paper | newton.
     #[serde(default)]
     mode: Option<String>,
-    /// Real time: compute the window prefixes on a worker thread, off the cycle (default
-    /// true; lockstep always computes them in the step).
+    /// Compute the window prefixes on a worker thread, off the cycle. Real time: default
+    /// true, the step never waits for it (it runs on the newest complete prefix). Lockstep:
+    /// default false; true waits for the worker, with commands bit-identical to the prefixes
+    /// computed in the step (a check of the real-time path's arithmetic).
     #[serde(default)]
     prefix_worker: Option<bool>,
 }
@@ -95,7 +97,7 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         // A time budget would make results depend on the machine's speed.
         comp.set_budget_ns(0);
     }
-    if !env.lockstep() && cfg.mode != Mode::Uncalibrated && p.prefix_worker.unwrap_or(true) {
+    if cfg.mode != Mode::Uncalibrated && p.prefix_worker.unwrap_or(!env.lockstep()) {
         // The worker inherits this thread's placement (the process's real-time settings are
         // applied after the stages are built): it moves to the CPUs the process is not pinned
         // to, where it cannot delay the cycle, and stays under SCHED_OTHER.
@@ -115,7 +117,11 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
             }) as Box<dyn FnOnce() + Send>
         });
         comp.start_prefix_worker(PrefixWorkerOptions {
-            sync: PrefixSync::Newest,
+            sync: if env.lockstep() {
+                PrefixSync::Wait
+            } else {
+                PrefixSync::Newest
+            },
             name: format!("{}-prefix", env.spec.name),
             on_start,
         })

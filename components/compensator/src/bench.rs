@@ -1,11 +1,16 @@
 //! The engine of `bowden bench compensate`: latency percentiles of one compensation step per
 //! mode over a seeded trajectory, side by side with the naive approach (tract's full
-//! evaluation for every trial) in the same run.
+//! evaluation for every trial) and the pass-through floor (no model: validation, output stage,
+//! history) in the same run. The window prefix is computed three ways: in the step, in
+//! `Compensator::prepare` after the step (as the compensator node did), and on the prefix
+//! worker thread (as the node does in real time), whose rows also say how often a step ran on
+//! an older prefix.
 
 use crate::compensator::{Compensator, CompensatorError, StepOutput};
 use crate::config::{ControllerConfig, EvaluatorChoice, Mode};
 use crate::contract::Direction;
 use crate::model::{LoadOptions, Model};
+use crate::prefix::{PrefixSync, PrefixWorkerOptions};
 use crate::refine::StopReason;
 use bowden_kinematics::{Robot, N_JOINTS};
 use hdrhistogram::Histogram;
@@ -33,7 +38,7 @@ impl Scenario {
     }
 }
 
-#[derive(Debug, Clone)]
+#[derive(Clone)]
 pub struct BenchOptions {
     /// Steps measured per (scenario, mode) with the incremental evaluator.
     pub steps: usize,
@@ -43,9 +48,32 @@ pub struct BenchOptions {
     /// Joint-space distance per call in the `fine` scenario, deg.
     pub fine_deg_per_step: f64,
     pub scenarios: Vec<Scenario>,
+    /// Release one step per control period (`config.output.period_ns`), as the 1 kHz loop
+    /// does, instead of back to back (the naive tract rows always run back to back). Only
+    /// then does a worker row's prefix lag show what it is at the robot: back to back, a
+    /// history step comes every ~100 × 15 µs instead of every ~100 ms.
+    pub paced: bool,
+    /// Runs first on each prefix worker thread: its placement (e.g. off the CPU the bench is
+    /// pinned to; the worker inherits the bench thread's affinity otherwise).
+    pub worker_placement: Option<std::sync::Arc<dyn Fn() + Send + Sync>>,
     /// Models, refinement settings and history rule come from here; the bench disables the
     /// time budget so every step runs its full iteration count.
     pub config: ControllerConfig,
+}
+
+impl std::fmt::Debug for BenchOptions {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("BenchOptions")
+            .field("steps", &self.steps)
+            .field("naive_steps", &self.naive_steps)
+            .field("seed", &self.seed)
+            .field("fine_deg_per_step", &self.fine_deg_per_step)
+            .field("scenarios", &self.scenarios)
+            .field("paced", &self.paced)
+            .field("worker_placement", &self.worker_placement.is_some())
+            .field("config", &self.config)
+            .finish()
+    }
 }
 
 /// Percentiles of one configuration.
@@ -53,8 +81,13 @@ pub struct BenchOptions {
 pub struct Latency {
     pub scenario: Scenario,
     pub mode: Mode,
-    /// `incremental` or `tract` (naive).
+    /// `incremental`, `tract` (naive) or `none` (the pass-through floor).
     pub evaluator: &'static str,
+    /// One step per control period (`--paced`) instead of back to back.
+    pub paced: bool,
+    /// Where the window prefix was computed: `in step`, `prepare` (after the step, see
+    /// `prepare_*`), `worker` (the prefix worker thread, real-time mode) or `none`.
+    pub prefix: &'static str,
     /// True when the prefix update ran in `Compensator::prepare` after each step (off the
     /// target → command path) instead of at the start of the next step; its own percentiles
     /// are in `prepare_*`.
@@ -74,6 +107,10 @@ pub struct Latency {
     pub history_change_fraction: f64,
     /// Fraction of steps whose refinement stopped at the threshold / tolerance.
     pub threshold_fraction: f64,
+    /// Fraction of steps that ran on an older prefix than the history's (worker rows).
+    pub lagged_fraction: f64,
+    /// The largest lag, history entries (worker rows).
+    pub max_prefix_lag: u32,
 }
 
 /// Naive / incremental, paper mode, same scenario.
@@ -131,6 +168,14 @@ pub fn random_trajectory(robot: &Robot, n: usize, spacing_deg: f64, seed: u64) -
     out
 }
 
+/// Where a row computes the window prefix.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum PrefixAt {
+    InStep,
+    Prepare,
+    Worker,
+}
+
 #[allow(clippy::too_many_arguments)]
 fn measure(
     comp: &mut Compensator,
@@ -139,15 +184,27 @@ fn measure(
     steps: usize,
     scenario: Scenario,
     evaluator: &'static str,
-    split: bool,
+    at: PrefixAt,
+    period: Option<std::time::Duration>,
     progress: &mut dyn FnMut(u64),
 ) -> Latency {
+    let split = at == PrefixAt::Prepare;
     let mut h = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3).expect("valid bounds");
     let mut hp = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3).expect("valid bounds");
     let mut out = StepOutput::default();
     let (mut evals, mut max_evals, mut changes, mut thr) = (0u64, 0u32, 0u64, 0u64);
+    let (mut lagged, mut max_lag) = (0u64, 0u32);
     comp.reset();
+    let start = std::time::Instant::now();
     for i in 0..warmup + steps {
+        if let Some(p) = period {
+            // Sleep to the step's release time, as a periodic loop does (never measured).
+            let release = start + p * i as u32;
+            let now = std::time::Instant::now();
+            if release > now {
+                std::thread::sleep(release - now);
+            }
+        }
         let t = &targets[i % targets.len()];
         // Targets come from the generator: always valid.
         let _ = comp.step(t, &mut out);
@@ -156,6 +213,9 @@ fn measure(
             let t0 = std::time::Instant::now();
             comp.prepare();
             prep_ns = t0.elapsed().as_nanos() as u64;
+        } else if at == PrefixAt::Worker {
+            // As the node does after publishing: hand the new history to the worker.
+            comp.prepare();
         }
         if i >= warmup {
             h.saturating_record(out.elapsed_ns.max(1));
@@ -166,6 +226,8 @@ fn measure(
             max_evals = max_evals.max(out.forward_evals);
             changes += (out.history_appended > 0) as u64;
             thr += (out.stop_reason == StopReason::Threshold) as u64;
+            lagged += (out.prefix_lag > 0) as u64;
+            max_lag = max_lag.max(out.prefix_lag);
             progress(1);
         }
     }
@@ -174,6 +236,13 @@ fn measure(
         scenario,
         mode: comp.mode(),
         evaluator,
+        paced: period.is_some(),
+        prefix: match (evaluator, at) {
+            ("none", _) => "none",
+            (_, PrefixAt::InStep) => "in step",
+            (_, PrefixAt::Prepare) => "prepare",
+            (_, PrefixAt::Worker) => "worker",
+        },
         prepare_split: split,
         prepare_p50_ns: if split { hp.value_at_quantile(0.5) } else { 0 },
         prepare_p999_ns: if split { hp.value_at_quantile(0.999) } else { 0 },
@@ -188,6 +257,8 @@ fn measure(
         max_forward_evals: max_evals,
         history_change_fraction: changes as f64 / n,
         threshold_fraction: thr as f64 / n,
+        lagged_fraction: lagged as f64 / n,
+        max_prefix_lag: max_lag,
     }
 }
 
@@ -220,11 +291,12 @@ fn load(cfg: &ControllerConfig, field: &'static str, dir: Direction) -> Result<(
 
 /// Total steps `run` will report through `progress` (for a progress bar).
 pub fn total_steps(opts: &BenchOptions) -> u64 {
-    (opts.scenarios.len() * ((Mode::ALL.len() + 2) * opts.steps + opts.naive_steps)) as u64
+    (opts.scenarios.len() * ((Mode::ALL.len() + 4) * opts.steps + opts.naive_steps)) as u64
 }
 
-/// Runs every scenario × mode with the incremental evaluator, and paper mode with the naive
-/// tract loop, in this process, one after the other.
+/// Runs every scenario × mode with the incremental evaluator (the prefix in the step; paper
+/// and newton also with it in `prepare` and on the worker), the pass-through floor, and paper
+/// mode with the naive tract loop, in this process, one after the other.
 pub fn run(opts: &BenchOptions, robot: &Robot, progress: &mut dyn FnMut(u64)) -> Result<BenchReport, CompensatorError> {
     let (fwd, fwd_name) = load(&opts.config, "model_fwd", Direction::Forward)?;
     let (inv, inv_name) = load(&opts.config, "model_inv", Direction::Inverse)?;
@@ -240,26 +312,46 @@ pub fn run(opts: &BenchOptions, robot: &Robot, progress: &mut dyn FnMut(u64)) ->
         let n_targets = (opts.steps + 2000).min(400_000);
         let targets = random_trajectory(robot, n_targets, spacing, opts.seed);
         let mut paper_inc = None;
-        let runs = Mode::ALL
-            .into_iter()
-            .map(|m| (m, false))
-            .chain([(Mode::Paper, true), (Mode::Newton, true)]);
-        for (mode, split) in runs {
+        let runs = Mode::ALL.into_iter().map(|m| (m, PrefixAt::InStep)).chain([
+            (Mode::Paper, PrefixAt::Prepare),
+            (Mode::Newton, PrefixAt::Prepare),
+            (Mode::Paper, PrefixAt::Worker),
+            (Mode::Newton, PrefixAt::Worker),
+        ]);
+        for (mode, at) in runs {
             let mut c = cfg.clone();
             c.mode = mode;
             c.evaluator = EvaluatorChoice::Auto;
-            let mut comp = Compensator::from_models(&c, robot, Some(fwd.clone()), Some(inv.clone()))?;
+            // The floor: uncalibrated without models, as the node runs it (validation, output
+            // stage, history; no prefix, no prediction).
+            let floor = mode == Mode::Uncalibrated;
+            let mut comp = if floor {
+                Compensator::from_models(&c, robot, None, None)?
+            } else {
+                Compensator::from_models(&c, robot, Some(fwd.clone()), Some(inv.clone()))?
+            };
+            if at == PrefixAt::Worker {
+                comp.start_prefix_worker(PrefixWorkerOptions {
+                    sync: PrefixSync::Newest,
+                    name: "bench-prefix".into(),
+                    on_start: opts
+                        .worker_placement
+                        .clone()
+                        .map(|f| Box::new(move || f()) as Box<dyn FnOnce() + Send>),
+                })
+                .map_err(|e| CompensatorError::Mismatch {
+                    path: "prefix worker".into(),
+                    what: e.to_string(),
+                })?;
+            }
+            let evaluator = if floor { "none" } else { "incremental" };
+            let period = opts
+                .paced
+                .then(|| std::time::Duration::from_nanos(cfg.output.period_ns.max(1)));
             let lat = measure(
-                &mut comp,
-                &targets,
-                1000,
-                opts.steps,
-                scenario,
-                "incremental",
-                split,
-                progress,
+                &mut comp, &targets, 1000, opts.steps, scenario, evaluator, at, period, progress,
             );
-            if mode == Mode::Paper && !split {
+            if mode == Mode::Paper && at == PrefixAt::InStep {
                 paper_inc = Some(lat.clone());
             }
             rows.push(lat);
@@ -275,7 +367,8 @@ pub fn run(opts: &BenchOptions, robot: &Robot, progress: &mut dyn FnMut(u64)) ->
             opts.naive_steps,
             scenario,
             "tract",
-            false,
+            PrefixAt::InStep,
+            None,
             progress,
         );
         if let Some(p) = paper_inc {
@@ -320,7 +413,12 @@ impl BenchReport {
                 r.scenario.name(),
                 r.mode,
                 r.evaluator,
-                if r.prepare_split { " (prepare split)" } else { "" }
+                match r.prefix {
+                    "prepare" => " (prefix in prepare)",
+                    "worker" => " (prefix worker)",
+                    "none" => " (pass-through floor)",
+                    _ => "",
+                }
             )
         };
         let labels: Vec<String> = self.rows.iter().map(label).collect();
@@ -414,11 +512,18 @@ impl BenchReport {
     pub fn to_markdown(&self) -> String {
         let us = |ns: u64| format!("{:.2}", ns as f64 / 1000.0);
         let mut s = format!(
-            "forward model: {}\ninverse model: {}\n(paper mode: M = {}; time budget disabled)\n\n",
-            self.model_fwd, self.model_inv, self.paper_iterations
+            "forward model: {}\ninverse model: {}\n(paper mode: M = {}; time budget disabled; {})\n\n",
+            self.model_fwd,
+            self.model_inv,
+            self.paper_iterations,
+            if self.rows.iter().any(|r| r.paced) {
+                "incremental rows paced at one step per control period, tract rows back to back"
+            } else {
+                "steps back to back"
+            }
         );
-        s += "| scenario | mode | evaluator | steps | p50 µs | p99 µs | p99.9 µs | max µs | mean µs | fwd evals (mean/max) | history changes | at threshold | prepare p50 / p99.9 / max µs |\n";
-        s += "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
+        s += "| scenario | mode | evaluator | prefix | steps | p50 µs | p99 µs | p99.9 µs | max µs | mean µs | fwd evals (mean/max) | history changes | at threshold | prepare p50 / p99.9 / max µs | on older prefix (max lag) |\n";
+        s += "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
         for r in &self.rows {
             let prep = if r.prepare_split {
                 format!(
@@ -428,13 +533,19 @@ impl BenchReport {
                     us(r.prepare_max_ns)
                 )
             } else {
-                "in step".to_string()
+                "–".to_string()
+            };
+            let lag = if r.prefix == "worker" {
+                format!("{:.2} % ({})", 100.0 * r.lagged_fraction, r.max_prefix_lag)
+            } else {
+                "–".to_string()
             };
             s += &format!(
-                "| {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {:.1}/{} | {:.1} % | {:.1} % | {} |\n",
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {:.1}/{} | {:.1} % | {:.1} % | {} | {} |\n",
                 r.scenario.name(),
                 r.mode,
                 r.evaluator,
+                r.prefix,
                 r.steps,
                 us(r.p50_ns),
                 us(r.p99_ns),
@@ -446,6 +557,7 @@ impl BenchReport {
                 100.0 * r.history_change_fraction,
                 100.0 * r.threshold_fraction,
                 prep,
+                lag,
             );
         }
         s += "\n| scenario | naive tract / incremental (paper mode): p50 | mean | p99.9 |\n|---|---:|---:|---:|\n";
@@ -472,6 +584,8 @@ mod tests {
             scenario: Scenario::Fine,
             mode,
             evaluator,
+            paced: false,
+            prefix: "in step",
             prepare_split: false,
             prepare_p50_ns: 0,
             prepare_p999_ns: 0,
@@ -486,6 +600,8 @@ mod tests {
             max_forward_evals: 51,
             history_change_fraction: 0.01,
             threshold_fraction: 0.0,
+            lagged_fraction: 0.0,
+            max_prefix_lag: 0,
         };
         let r = BenchReport {
             model_fwd: "f.onnx".into(),
@@ -504,7 +620,7 @@ mod tests {
         };
         let md = r.to_markdown();
         assert!(
-            md.contains("| fine | paper | tract | 10 | 2000.00 |") && md.contains("200×"),
+            md.contains("| fine | paper | tract | in step | 10 | 2000.00 |") && md.contains("200×"),
             "{md}"
         );
         let dir = tempfile::tempdir().unwrap();

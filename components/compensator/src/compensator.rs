@@ -613,11 +613,22 @@ impl Compensator {
     /// starts right after the command went out.
     pub fn prepare(&mut self) {
         if let Some(w) = self.worker.as_mut() {
+            let fh = self.history.sent_tail(self.fwd_l - 1);
+            let ih = self.history.desired_tail(self.inv_l - 1);
             if w.handles(FWD) {
-                w.post(FWD, self.history.sent_tail(self.fwd_l - 1));
+                w.post(FWD, fh);
             }
             if w.handles(INV) {
-                w.post(INV, self.history.desired_tail(self.inv_l - 1));
+                w.post(INV, ih);
+            }
+            // A swapped-in model has no prefix yet, and the worker first builds its own
+            // evaluators of it: compute it here, after the command went out, rather than at
+            // the start of the next step.
+            if let (true, Some(Evaluator::Incremental(n))) = (w.unusable(FWD), self.fwd.as_mut()) {
+                w.sync(FWD, n, fh);
+            }
+            if let (true, Some(Evaluator::Incremental(n))) = (w.unusable(INV), self.inv.as_mut()) {
+                w.sync(INV, n, ih);
             }
         }
         self.sync_prefixes_in_step();

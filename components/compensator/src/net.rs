@@ -81,13 +81,16 @@ pub(crate) enum Op {
     /// Single-layer forward LSTM (ONNX semantics, gates i, o, f, c), zero initial state; the
     /// value is the sequence of hidden states. `wr` is `[input + hidden][4·hp]` (the input
     /// weights W then the recurrent weights R, one row per input), `b` is `[4·hp]` (Wb + Rb),
-    /// gate g at offset g·hp.
+    /// gate g at offset g·hp. `wb` holds the same weights blocked for [`matvec_blocked`]:
+    /// `[4·hp / BLOCK][input + hidden][BLOCK]`, so each block of outputs reads its rows as one
+    /// contiguous stream.
     Lstm {
         src: NodeId,
         input: usize,
         hidden: usize,
         wr: Vec<f32>,
         b: Vec<f32>,
+        wb: Vec<f32>,
     },
     /// The last column of a sequence, as a vector.
     TakeLast {
@@ -810,9 +813,11 @@ impl IncrementalNet {
                 src,
                 input,
                 hidden,
-                wr,
+                wb,
                 b,
+                ..
             } => {
+                let rows = input + hidden;
                 let xo = self.at(*src, t);
                 let ho = if t > 0 { self.at(n, t - 1) } else { 0 };
                 let (before, rest) = self.vals.split_at_mut(n);
@@ -820,7 +825,7 @@ impl IncrementalNet {
                 let z = &mut self.lstm_gates[n];
                 if t == self.l - 1 {
                     // Trial: b + R·h_{L−2} is in `partial`; only W·x_t is new.
-                    matvec(z, &self.partial[n], &wr[..input * 4 * p], &before[*src][xo..xo + input]);
+                    matvec_blocked(z, &self.partial[n], wb, rows, 0, &before[*src][xo..xo + input]);
                 } else {
                     let xs = &mut self.xin[..input + hidden];
                     xs[..*input].copy_from_slice(&before[*src][xo..xo + input]);
@@ -829,7 +834,7 @@ impl IncrementalNet {
                     } else {
                         xs[*input..].fill(0.0);
                     }
-                    matvec(z, b, wr, xs);
+                    matvec_blocked(z, b, wb, rows, 0, xs);
                 }
                 // Gate activations in place: i, o, f sigmoid; c̃ tanh.
                 for v in z[..3 * p].iter_mut() {
@@ -903,14 +908,13 @@ impl IncrementalNet {
                 }
             }
             Op::Lstm {
-                input, hidden, wr, b, ..
+                input, hidden, wb, b, ..
             } => {
-                let p = self.cp[n];
                 let ho = if l >= 2 { self.at(n, l - 2) } else { 0 };
                 let y = &mut self.partial[n];
                 if l >= 2 {
                     let h = &self.vals[n][ho..ho + hidden];
-                    matvec(y, b, &wr[input * 4 * p..], h);
+                    matvec_blocked(y, b, wb, input + hidden, *input, h);
                 } else {
                     y.copy_from_slice(b);
                 }
@@ -1026,9 +1030,9 @@ impl IncrementalNet {
                 // Only the tap at offset 0 (kk = K−1) sees the newest column.
                 let ps = self.cp[*src];
                 let wk = &w[(k - 1) * c_in * p..];
+                matvec_dirs(dy_all, &zeros[..p], wk, &before[*src], ps, *c_in, j);
                 for d in 0..j {
                     let dy = &mut dy_all[d * p..(d + 1) * p];
-                    matvec(dy, &zeros[..p], wk, &before[*src][d * ps..d * ps + c_in]);
                     if *relu {
                         mask(dy);
                     }
@@ -1041,21 +1045,17 @@ impl IncrementalNet {
             }
             Op::Dense { src, n_in, w, relu, .. } => {
                 let ps = self.cp[*src];
-                for d in 0..j {
-                    let dy = &mut dy_all[d * p..(d + 1) * p];
-                    matvec(dy, &zeros[..p], w, &before[*src][d * ps..d * ps + n_in]);
-                    if *relu {
-                        mask(dy);
+                matvec_dirs(dy_all, &zeros[..p], w, &before[*src], ps, *n_in, j);
+                if *relu {
+                    for d in 0..j {
+                        mask(&mut dy_all[d * p..(d + 1) * p]);
                     }
                 }
             }
             Op::FlattenDense { src, c_in, w, .. } => {
                 let ps = self.cp[*src];
                 let wl = &w[(l - 1) * c_in * p..];
-                for d in 0..j {
-                    let dy = &mut dy_all[d * p..(d + 1) * p];
-                    matvec(dy, &zeros[..p], wl, &before[*src][d * ps..d * ps + c_in]);
-                }
+                matvec_dirs(dy_all, &zeros[..p], wl, &before[*src], ps, *c_in, j);
             }
             Op::Lstm { src, input, wr, .. } => {
                 // The previous state does not depend on the newest input: only x_t does.
@@ -1157,6 +1157,134 @@ fn matvec_body(y: &mut [f32], init: &[f32], w: &[f32], x: &[f32], relu: bool, re
             }
         }
         y[ob..ob + LANES].copy_from_slice(&out);
+    }
+}
+
+/// The tangent products of a layer, one [`matvec`] per direction `d`:
+/// `y[d·p ..][..p] = init + W · x[d·ps ..][..n_in]` for `d < dirs` (`p = init.len()`), under one
+/// CPU-feature dispatch so the per-direction calls inline into one vectorised function (a
+/// Jacobian trial makes J of them per layer, each only a few rows long). Each product's
+/// arithmetic is [`matvec_body`]'s: bit-identical to calling [`matvec`] per direction.
+#[inline]
+fn matvec_dirs(y: &mut [f32], init: &[f32], w: &[f32], x: &[f32], ps: usize, n_in: usize, dirs: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: the CPU has AVX (checked just above).
+        unsafe { matvec_dirs_avx(y, init, w, x, ps, n_in, dirs) };
+        return;
+    }
+    matvec_dirs_body(y, init, w, x, ps, n_in, dirs)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn matvec_dirs_avx(y: &mut [f32], init: &[f32], w: &[f32], x: &[f32], ps: usize, n_in: usize, dirs: usize) {
+    matvec_dirs_body(y, init, w, x, ps, n_in, dirs)
+}
+
+#[inline(always)]
+fn matvec_dirs_body(y: &mut [f32], init: &[f32], w: &[f32], x: &[f32], ps: usize, n_in: usize, dirs: usize) {
+    let p = init.len();
+    for d in 0..dirs {
+        matvec_body(
+            &mut y[d * p..(d + 1) * p],
+            init,
+            w,
+            &x[d * ps..d * ps + n_in],
+            false,
+            None,
+        );
+    }
+}
+
+/// Output lanes per block of [`matvec_blocked`]: two [`LANES`] blocks, one 64-byte cache line
+/// of weights per row (and one AVX-512 register).
+pub(crate) const BLOCK: usize = 2 * LANES;
+
+/// `w` (`[rows][p]`, row-major) re-laid as `[p / BLOCK][rows][BLOCK]`.
+pub(crate) fn block_rows(w: &[f32], rows: usize, p: usize) -> Vec<f32> {
+    assert!(p.is_multiple_of(BLOCK) && w.len() == rows * p);
+    let mut out = vec![0.0f32; rows * p];
+    for blk in 0..p / BLOCK {
+        for r in 0..rows {
+            out[(blk * rows + r) * BLOCK..][..BLOCK].copy_from_slice(&w[r * p + blk * BLOCK..][..BLOCK]);
+        }
+    }
+    out
+}
+
+/// [`matvec`] over rows `row0 .. row0 + x.len()` of weights blocked by [`block_rows`]
+/// (`rows` rows in all), for the LSTM: its 4·hp × (input + hidden) matrix (512 × 133 for the
+/// shipped inverse model) is read 79 times per prefix, and the row-major layout touches each
+/// 64-byte line twice, half a line at a time, 2 KB apart. Here every output block streams its
+/// rows contiguously. Per output lane the arithmetic is [`matvec_body`]'s, in the same order
+/// (four accumulators over the rows ≡ 0, 1, 2, 3 mod 4, the tail into the first,
+/// `init + ((a0 + a1) + (a2 + a3))`, no FMA), so results are bit-identical to [`matvec`] on the
+/// row-major weights (a test checks it).
+#[inline]
+fn matvec_blocked(y: &mut [f32], init: &[f32], wb: &[f32], rows: usize, row0: usize, x: &[f32]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU has AVX-512F (checked just above).
+            unsafe { matvec_blocked_avx512(y, init, wb, rows, row0, x) };
+            return;
+        }
+        if std::arch::is_x86_feature_detected!("avx") {
+            // SAFETY: the CPU has AVX (checked just above).
+            unsafe { matvec_blocked_avx(y, init, wb, rows, row0, x) };
+            return;
+        }
+    }
+    matvec_blocked_body(y, init, wb, rows, row0, x)
+}
+
+/// [`matvec_blocked`] with 512-bit vectors (bit-identical: no FMA, IEEE lanes).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn matvec_blocked_avx512(y: &mut [f32], init: &[f32], wb: &[f32], rows: usize, row0: usize, x: &[f32]) {
+    matvec_blocked_body(y, init, wb, rows, row0, x)
+}
+
+/// [`matvec_blocked`] with 256-bit vectors (bit-identical, see [`matvec_avx`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn matvec_blocked_avx(y: &mut [f32], init: &[f32], wb: &[f32], rows: usize, row0: usize, x: &[f32]) {
+    matvec_blocked_body(y, init, wb, rows, row0, x)
+}
+
+#[inline(always)]
+fn matvec_blocked_body(y: &mut [f32], init: &[f32], wb: &[f32], rows: usize, row0: usize, x: &[f32]) {
+    let p = y.len();
+    let n = x.len();
+    debug_assert!(p.is_multiple_of(BLOCK) && init.len() >= p && row0 + n <= rows && wb.len() >= rows * p);
+    for blk in 0..p / BLOCK {
+        let w = &wb[(blk * rows + row0) * BLOCK..(blk * rows + row0 + n) * BLOCK];
+        let mut acc = [[0.0f32; BLOCK]; 4];
+        let mut r = 0;
+        while r + 4 <= n {
+            for (g, a) in acc.iter_mut().enumerate() {
+                let row: &[f32; BLOCK] = w[(r + g) * BLOCK..(r + g + 1) * BLOCK].try_into().expect("BLOCK");
+                let xr = x[r + g];
+                for q in 0..BLOCK {
+                    a[q] += row[q] * xr;
+                }
+            }
+            r += 4;
+        }
+        while r < n {
+            let row: &[f32; BLOCK] = w[r * BLOCK..(r + 1) * BLOCK].try_into().expect("BLOCK");
+            let xr = x[r];
+            for q in 0..BLOCK {
+                acc[0][q] += row[q] * xr;
+            }
+            r += 1;
+        }
+        let b: &[f32; BLOCK] = init[blk * BLOCK..(blk + 1) * BLOCK].try_into().expect("BLOCK");
+        let out = &mut y[blk * BLOCK..(blk + 1) * BLOCK];
+        for q in 0..BLOCK {
+            out[q] = b[q] + ((acc[0][q] + acc[1][q]) + (acc[2][q] + acc[3][q]));
+        }
     }
 }
 
@@ -1388,6 +1516,7 @@ pub(crate) mod build {
                 b[col] = b_onnx[row] + b_onnx[4 * hidden + row];
             }
         }
+        let wb = block_rows(&wr, input + hidden, 4 * p);
         Node {
             op: Op::Lstm {
                 src,
@@ -1395,6 +1524,7 @@ pub(crate) mod build {
                 hidden,
                 wr,
                 b,
+                wb,
             },
             seq: true,
             c: hidden,
@@ -1620,6 +1750,7 @@ mod tests {
                     hidden,
                     wr,
                     b,
+                    ..
                 } => {
                     let x = &vals[*src];
                     let (mut h, mut c) = (vec![0.0f64; *hidden], vec![0.0f64; *hidden]);
@@ -1772,6 +1903,42 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    #[test]
+    fn blocked_matvec_is_bit_identical_to_row_major() {
+        let mut rng = ChaCha8Rng::seed_from_u64(17);
+        for (rows, p) in [(133usize, 512usize), (7, 32), (4, 16), (1, 48), (130, 64)] {
+            let w = rand_vec(&mut rng, rows * p, 1.0);
+            let init = rand_vec(&mut rng, p, 1.0);
+            let wb = block_rows(&w, rows, p);
+            for (row0, n) in [(0, rows), (0, rows.min(5)), (rows.min(5), rows - rows.min(5))] {
+                let x = rand_vec(&mut rng, n, 3.0);
+                let (mut a, mut b) = (vec![0.0f32; p], vec![0.0f32; p]);
+                matvec(&mut a, &init, &w[row0 * p..(row0 + n) * p], &x);
+                matvec_blocked(&mut b, &init, &wb, rows, row0, &x);
+                let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&a), bits(&b), "rows {rows} p {p} row0 {row0} n {n}");
+            }
+        }
+    }
+
+    #[test]
+    fn direction_batched_matvec_is_bit_identical_to_one_per_direction() {
+        let mut rng = ChaCha8Rng::seed_from_u64(19);
+        for (n_in, p, ps, dirs) in [(5usize, 8usize, 8usize, 5usize), (13, 16, 16, 5), (3, 24, 8, 2)] {
+            let w = rand_vec(&mut rng, n_in * p, 1.0);
+            let init = rand_vec(&mut rng, p, 1.0);
+            let x = rand_vec(&mut rng, dirs * ps, 2.0);
+            let mut a = vec![0.0f32; dirs * p];
+            for d in 0..dirs {
+                matvec(&mut a[d * p..(d + 1) * p], &init, &w, &x[d * ps..d * ps + n_in]);
+            }
+            let mut b = vec![0.0f32; dirs * p];
+            matvec_dirs(&mut b, &init, &w, &x, ps, n_in, dirs);
+            let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&a), bits(&b), "n_in {n_in} p {p} dirs {dirs}");
         }
     }
 

@@ -3,7 +3,9 @@
 //! When the history gains an entry, the first L − 1 columns of every layer (and an LSTM's
 //! state after L − 1 steps) must be recomputed before the next trial sees the new window. For
 //! the shipped LSTM inverse model that is 79 steps of a 512×133 matrix–vector product plus
-//! 640 transcendental functions each, 1.5–2.5 ms: more than a 1 kHz period. With a
+//! 640 transcendental functions each: 0.6 ms with the blocked kernel of [`crate::net`]
+//! (1.45 ms before it), on a shared 2-core machine up to several ms, the better part of a
+//! 1 kHz period or more. With a
 //! [`PrefixWorker`] the cycle never computes it. Each model has three evaluators: the
 //! *active* one the step runs trials on, a *ready* one (the newest prefix the worker
 //! finished) and one the worker computes into. After a history step the cycle posts the new
@@ -24,7 +26,8 @@
 //!   step reports how many entries its prefix lags in [`crate::StepOutput::prefix_lag`].
 //!   At construction, after `reset` and after a model swap there is no complete prefix of
 //!   the current models and history: it is then computed in place (construction and
-//!   `reset` are not cycles; a swap costs one in-cycle prefix, as without the worker).
+//!   `reset` are not cycles; after a swap `Compensator::prepare` computes it, after the
+//!   command went out, as without the worker, so a swap costs one in-cycle prefix).
 
 use crate::net::{IncrementalNet, Net};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, TryLockError};
@@ -87,8 +90,11 @@ struct Slot {
     req: Option<(Key, u64)>,
     /// The newest prefix the worker finished.
     ready: Option<Held>,
-    /// The evaluator the cycle gave back, for the worker's next job.
-    spare: Option<Held>,
+    /// Evaluators for the worker's next jobs (the ones the cycle gave back). Three evaluators
+    /// circulate per model (active, ready, the worker's), so one entry is always free when
+    /// the cycle gives one back; two, because right after a swap the active evaluator is the
+    /// swapped-in one and both others are the worker's fresh ones.
+    spare: [Option<Held>; 2],
 }
 
 struct State {
@@ -173,7 +179,7 @@ impl PrefixWorker {
                 req_hist: vec![0.0; *hist_len],
                 req: None,
                 ready: None,
-                spare: Some(fresh()),
+                spare: [Some(fresh()), None],
             });
             work[m] = Some(fresh());
             sides[m] = Some(Side {
@@ -264,6 +270,14 @@ impl PrefixWorker {
         }
     }
 
+    /// Whether model `m`'s active evaluator holds no prefix of the current model and epoch
+    /// (after a swap): the next [`Self::sync`] would compute one in place.
+    pub(crate) fn unusable(&self, m: usize) -> bool {
+        self.sides[m]
+            .as_ref()
+            .is_some_and(|s| s.active.is_none_or(|a| a.epoch != s.wanted.epoch))
+    }
+
     /// Model `m` is no longer handled (a swap brought in an evaluator without a prefix split).
     /// The slot's evaluators stay with the worker until it ends.
     pub(crate) fn release(&mut self, m: usize) {
@@ -336,8 +350,9 @@ impl PrefixWorker {
             active.set_history(hist);
             side.active = Some(side.wanted);
         }
-        side.active
-            .map_or(0, |a| side.wanted.count.saturating_sub(a.count).min(u32::MAX as u64) as u32)
+        side.active.map_or(0, |a| {
+            side.wanted.count.saturating_sub(a.count).min(u32::MAX as u64) as u32
+        })
     }
 
     /// Blocks until the worker delivered the prefix of the current history for every model
@@ -383,12 +398,15 @@ fn adopt(g: &mut State, m: usize, side: &mut Side, active: &mut Box<IncrementalN
         Some(a) if a.epoch == rk.epoch => rk.count > a.count,
         _ => true,
     };
-    if r.gen != side.gen || rk.epoch != side.wanted.epoch || !newer || slot.spare.is_some() {
+    let Some(free) = slot.spare.iter_mut().find(|s| s.is_none()) else {
+        return false;
+    };
+    if r.gen != side.gen || rk.epoch != side.wanted.epoch || !newer {
         return false;
     }
     let mut r = slot.ready.take().expect("checked above");
     std::mem::swap(active, &mut r.net);
-    slot.spare = Some(Held {
+    *free = Some(Held {
         net: r.net,
         key: side.active,
         gen: side.gen,
@@ -426,7 +444,7 @@ fn worker_main(sh: &Shared, mut work: [Option<Held>; 2]) {
                     let Some(slot) = g.slots[m].as_mut() else { continue };
                     let Some((key, gen)) = slot.req else { continue };
                     if work[m].is_none() {
-                        work[m] = slot.spare.take();
+                        work[m] = take_spare(slot);
                     }
                     if work[m].as_ref().is_some_and(|w| w.gen == gen) {
                         slot.req = None;
@@ -445,25 +463,28 @@ fn worker_main(sh: &Shared, mut work: [Option<Held>; 2]) {
         drop(g);
         match job {
             Job::Rebuild(m, net, gen) => {
-                let fresh = Held {
-                    net: Box::new(IncrementalNet::new(net)),
+                // Two evaluators of the new model; the third is the swapped-in active one.
+                let fresh = || Held {
+                    net: Box::new(IncrementalNet::new(net.clone())),
                     key: None,
                     gen,
                 };
+                let (a, b) = (fresh(), fresh());
                 let mut g = sh.lock();
+                let Some(slot) = g.slots[m].as_mut() else { continue };
+                if slot.new_model.is_some() {
+                    // Superseded by another swap meanwhile: that one is next.
+                    continue;
+                }
                 // The old model's evaluators are dropped here, off the cycle, after the lock.
-                let old = g.slots[m]
-                    .as_mut()
-                    .map(|slot| (slot.ready.take(), slot.spare.take()));
-                let old_work = work[m].replace(fresh);
+                let old = (slot.ready.take(), std::mem::replace(&mut slot.spare, [Some(b), None]));
+                let old_work = work[m].replace(a);
                 drop(g);
                 drop((old, old_work));
             }
             Job::Compute(m, key) => {
                 let w = work[m].as_mut().expect("a job has an evaluator");
-                let shift = w
-                    .key
-                    .is_some_and(|k| k.epoch == key.epoch && k.count + 1 == key.count);
+                let shift = w.key.is_some_and(|k| k.epoch == key.epoch && k.count + 1 == key.count);
                 // shift_history is bit-identical to set_history (a test checks it).
                 if shift {
                     w.net.shift_history(&hist[m]);
@@ -478,11 +499,15 @@ fn worker_main(sh: &Shared, mut work: [Option<Held>; 2]) {
                     // The model changed meanwhile: the result is of no use.
                     work[m] = Some(done);
                 } else {
-                    work[m] = slot.ready.replace(done).or_else(|| slot.spare.take());
+                    work[m] = slot.ready.replace(done).or_else(|| take_spare(slot));
                 }
                 drop(g);
                 sh.done.notify_all();
             }
         }
     }
+}
+
+fn take_spare(slot: &mut Slot) -> Option<Held> {
+    slot.spare.iter_mut().find_map(|s| s.take())
 }

@@ -769,15 +769,20 @@ pub struct CycleResult {
 
 /// Runs `cfg` (real time) for `seconds` under `load`, returns the run's report (every stage's
 /// final status carries its latency percentiles and misses).
+///
+/// With `summaries`, every process prints its own report on stderr at the end: per stage the
+/// compute-time percentiles of its own steps and the overruns of its `budget_us`, which tell
+/// a miss the stage caused from one the process inherited (a late wake-up, a stage before it).
 pub fn cycle_run(
     cfg: &PipelineConfig,
     launch: &LaunchOptions,
     seconds: f64,
     load: &Load,
     label: &str,
+    summaries: bool,
 ) -> Result<CycleResult, BenchError> {
     let mut opts = SessionOptions::new(launch.clone());
-    opts.launch.quiet_children = true;
+    opts.launch.quiet_children = !summaries;
     let session = RealtimeSession::start(cfg, opts)?;
     let gen = match load {
         Load::None => None,
