@@ -19,37 +19,18 @@ fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// The control chain with newton on the shipped TCN pair and an adapt node.
+/// The control chain of the other runtime tests, with newton on the shipped TCN pair and an
+/// adapt node.
 fn chain_with_adapt(prefix: &str, state_dir: &Path, drill: u64, log: Option<&Path>) -> String {
     let controller = root().join("configs/controller.toml");
-    let mut s = format!(
-        r#"[runtime]
-mode = "lockstep"
-prefix = "{prefix}"
-period_us = 1000
-seed = 3
-
-[[node]]
-name = "trajectory"
-[node.params]
-source = "dataset"
-samples = 30
-pause_s = 0.02
-
-[[node]]
-name = "compensator"
-[node.params]
-config = "{controller}"
-mode = "newton"
-
-[[node]]
-name = "actuator"
-[node.params]
-stale_after_ms = 20.0
-
-[[node]]
-name = "plant"
-
+    let mut s = control_chain(prefix, "never")
+        .replace("samples = 20\npause_s = 0.05", "samples = 30\npause_s = 0.02")
+        .replace(
+            "mode = \"uncalibrated\"",
+            &format!("config = \"{}\"\nmode = \"newton\"", controller.display()),
+        );
+    s.push_str(&format!(
+        r#"
 [[node]]
 name = "adapt"
 [node.params]
@@ -57,9 +38,8 @@ state_dir = "{state}"
 resume = false
 drill_every_ticks = {drill}
 "#,
-        controller = controller.display(),
         state = state_dir.display(),
-    );
+    ));
     if let Some(log) = log {
         s.push_str(&format!(
             r#"
