@@ -16,6 +16,8 @@ pub enum Command {
     Transfer(super::transfer::BenchCommand),
     #[command(flatten)]
     Swap(super::adapt::BenchCommand),
+    #[command(flatten)]
+    Bridge(super::bridge::BenchCommand),
 }
 
 pub fn run(c: Command) -> anyhow::Result<()> {
@@ -26,5 +28,6 @@ pub fn run(c: Command) -> anyhow::Result<()> {
         Command::Learning(c) => super::learning::bench(c),
         Command::Transfer(c) => super::transfer::bench(c),
         Command::Swap(c) => super::adapt::bench(c),
+        Command::Bridge(c) => super::bridge::bench(c),
     }
 }

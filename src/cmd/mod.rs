@@ -2,6 +2,7 @@
 
 pub mod adapt;
 pub mod bench;
+pub mod bridge;
 pub mod camera;
 pub mod collect;
 pub mod compensate;

@@ -28,6 +28,7 @@ pub fn factory(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         "camera" => camera::build(env),
         "estimator" => estimator::build(env),
         "adapt" => adapt::build(env),
+        "bridge" => Ok(Box::new(bowden_bridge::BridgeStage::from_env(env)?)),
         other => Err(env.error(format!("no built-in node of kind `{other}`"))),
     }
 }

@@ -112,6 +112,7 @@ KIND_INPUTS = {
     "camera": (PLANT_STATE,),
     "estimator": (RGBD_FRAME,),
     "adapt": (),
+    "bridge": (),
     "recorder": (),
 }
 KIND_OUTPUTS = {
@@ -122,6 +123,7 @@ KIND_OUTPUTS = {
     "camera": (RGBD_FRAME,),
     "estimator": (MARKER_SET, JOINT_ESTIMATE),
     "adapt": (MODEL_UPDATE,),
+    "bridge": (),
     "recorder": (),
 }
 
@@ -149,6 +151,8 @@ def producers(config_path: str | None, service: str) -> list[str]:
         name = node.get("name", "")
         kind = node.get("kind", name)
         outs = node.get("outputs", KIND_OUTPUTS.get(kind, ()))
+        if kind == "bridge":  # a bridge publishes what it imports from its peer
+            outs = node.get("params", {}).get("import", [])
         if service in outs:
             found.append(name)
     return found

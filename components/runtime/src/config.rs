@@ -230,7 +230,7 @@ pub struct KindInfo {
 }
 
 /// The kinds bowden ships.
-pub const KINDS: [KindInfo; 8] = [
+pub const KINDS: [KindInfo; 9] = [
     KindInfo {
         kind: "trajectory",
         inputs: &[],
@@ -302,6 +302,20 @@ pub const KINDS: [KindInfo; 8] = [
         outputs: &[services::MODEL_UPDATE],
         periodic: true,
         default_wake_timeout_us: None,
+        default_deadline_us: None,
+    },
+    KindInfo {
+        // Forwards chosen services to and from another machine over Zenoh (components/bridge).
+        // Its services come from `params.export` (read here, woken by, never waited for in the
+        // dataflow: a bridge closes loops between machines) and `params.import` (published
+        // here). Wakes at least every 50 ms to watch its peer.
+        kind: "bridge",
+        inputs: &[],
+        side_inputs: &[],
+        passive_inputs: &[],
+        outputs: &[],
+        periodic: false,
+        default_wake_timeout_us: Some(50_000),
         default_deadline_us: None,
     },
     KindInfo {
@@ -607,9 +621,23 @@ impl PipelineConfig {
                     ));
                 }
             }
-            let side_inputs = info
+            let mut side_inputs: Vec<String> = info
                 .map(|k| k.side_inputs.iter().map(|s| s.to_string()).collect())
                 .unwrap_or_default();
+            let mut outputs = outputs;
+            if kind == "bridge" {
+                if file.runtime.mode == Mode::Lockstep {
+                    return Err(bad(
+                        field("kind"),
+                        "a bridge joins pipelines that run on different machines, each on its own clock: \
+                         lockstep cannot span it; run both sides with `mode = \"realtime\"`"
+                            .into(),
+                    ));
+                }
+                let (export, import) = bridge_services(&n.params).map_err(|p| bad(field("params"), p))?;
+                side_inputs = export;
+                outputs = import;
+            }
             let passive_inputs = info
                 .map(|k| k.passive_inputs.iter().map(|s| s.to_string()).collect())
                 .unwrap_or_default();
@@ -867,6 +895,48 @@ impl PipelineConfig {
             })
             .collect()
     }
+}
+
+/// The services a bridge's `params.export` (iceoryx2 → network) and `params.import`
+/// (network → iceoryx2) name (validated: known, not both ways, not the launcher's own).
+pub fn bridge_services(params: &toml::Table) -> Result<(Vec<String>, Vec<String>), String> {
+    let list = |key: &str| -> Result<Vec<String>, String> {
+        let Some(v) = params.get(key) else {
+            return Ok(Vec::new());
+        };
+        let arr = v
+            .as_array()
+            .ok_or(format!("`{key}` must be an array of service names"))?;
+        let mut out: Vec<String> = Vec::new();
+        for s in arr {
+            let s = s.as_str().ok_or(format!("`{key}` must be an array of strings"))?;
+            if !services::ALL.contains(&s) {
+                return Err(format!(
+                    "`{key}`: unknown service `{s}` (known: {})",
+                    services::ALL.join(", ")
+                ));
+            }
+            if s == services::CLOCK || s == services::COMPONENT_STATUS {
+                return Err(format!(
+                    "`{key}`: `{s}` belongs to the launcher of each side and is not bridged"
+                ));
+            }
+            if out.iter().any(|o| o == s) {
+                return Err(format!("`{key}`: service `{s}` listed twice"));
+            }
+            out.push(s.to_string());
+        }
+        Ok(out)
+    };
+    let export = list("export")?;
+    let import = list("import")?;
+    if let Some(s) = export.iter().find(|s| import.contains(s)) {
+        return Err(format!("service `{s}` is both exported and imported"));
+    }
+    if export.is_empty() && import.is_empty() {
+        return Err("a bridge needs `export = [...]` and/or `import = [...]`".into());
+    }
+    Ok((export, import))
 }
 
 /// The services a recorder's `params.services` names (validated).

@@ -285,6 +285,14 @@ pub fn run_process(
             waiters.push(w);
         }
     }
+    // Work arriving from outside iceoryx2 (the bridge's network queue) wakes the process too.
+    if event_driven {
+        for slot in &slots {
+            if let Some(fd) = slot.stage.wake_fd() {
+                reactor.add(fd).map_err(|e| os_err(process, "epoll add", e))?;
+            }
+        }
+    }
     let clock_in = ports.input::<ClockTick>(services::CLOCK, 8)?;
     let clock_waiter = ports.listener(services::CLOCK)?;
     reactor

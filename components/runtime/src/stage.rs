@@ -109,6 +109,13 @@ pub trait Stage {
         Ok(())
     }
 
+    /// A file descriptor that, when readable, means this stage has work that did not arrive on
+    /// an iceoryx2 input (a network bridge's receive queue). An event-driven process wakes on
+    /// it as on its inputs; the stage resets it in `step`.
+    fn wake_fd(&self) -> Option<std::os::fd::RawFd> {
+        None
+    }
+
     /// Extra lines for the exit summary.
     fn summary(&self) -> Vec<String> {
         Vec::new()

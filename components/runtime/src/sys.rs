@@ -104,6 +104,43 @@ fn cvt(rc: libc::c_int) -> io::Result<libc::c_int> {
     }
 }
 
+/// A non-blocking eventfd another thread (or a library's callback) signals to wake a stage's
+/// event-driven process: [`crate::stage::Stage::wake_fd`] hands its fd to the process's
+/// [`Reactor`]. `signal` and `drain` allocate nothing and never block.
+pub struct EventFd(OwnedFd);
+
+impl EventFd {
+    pub fn new() -> io::Result<Self> {
+        // SAFETY: plain syscall; the fd is owned right away.
+        let fd = cvt(unsafe { libc::eventfd(0, libc::EFD_NONBLOCK | libc::EFD_CLOEXEC) })?;
+        Ok(Self(unsafe { OwnedFd::from_raw_fd(fd) }))
+    }
+
+    /// Makes the fd readable (adds 1 to its counter). Safe to call from any thread.
+    pub fn signal(&self) {
+        let one: u64 = 1;
+        // SAFETY: writing 8 bytes from a valid u64 to our eventfd; a full counter (EAGAIN)
+        // already means "readable", so the result does not matter.
+        unsafe { libc::write(self.0.as_raw_fd(), &one as *const u64 as *const libc::c_void, 8) };
+    }
+
+    /// Resets the counter; returns how many signals it held (0 if none).
+    pub fn drain(&self) -> u64 {
+        let mut v: u64 = 0;
+        // SAFETY: reading the 8-byte counter of a non-blocking eventfd into a valid u64.
+        let n = unsafe { libc::read(self.0.as_raw_fd(), &mut v as *mut u64 as *mut libc::c_void, 8) };
+        if n == 8 {
+            v
+        } else {
+            0
+        }
+    }
+
+    pub fn fd(&self) -> RawFd {
+        self.0.as_raw_fd()
+    }
+}
+
 /// What woke a [`Reactor::wait`].
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Wake {

@@ -1,0 +1,532 @@
+//! The `bridge` stage: forwards chosen iceoryx2 services to and from another machine over
+//! [Zenoh](https://zenoh.io) (what ROS 2's rmw_zenoh uses), so the camera and the marker
+//! estimator can run on a vision PC while the control chain runs on the real-time control PC.
+//!
+//! One bridge per machine and link, a stage of its pipeline like any other (its process wakes
+//! on its exported services, on samples arriving from the peer, and every 50 ms):
+//!
+//! - **export** (iceoryx2 → Zenoh): every sample of an exported service is sent as one Zenoh
+//!   message, its exact shared-memory bytes behind a 16-byte header ([`wire`]).
+//! - **import** (Zenoh → iceoryx2): the Zenoh thread that receives a message checks it (magic,
+//!   the sample type of this build, sizes) and republishes its bytes unchanged on iceoryx2 at
+//!   once, so `seq`, `tick` and `t_origin_ns` cross intact. Imports are published through
+//!   iceoryx2's thread-safe `ipc_threadsafe` variant (the same shared memory as `ipc`, its
+//!   ports guarded by a mutex): handing the message to the stage's own thread instead would
+//!   cost one more thread wake-up per sample.
+//!   `t_origin_ns` stays on the clock of the machine where the information originated: across
+//!   machines, latencies computed from it include the clocks' offset (synchronise with PTP).
+//! - **peer**: each bridge holds a Zenoh liveliness token; a peer whose token disappears (its
+//!   process died: at once; its network went silent: after `lease_ms`) is a fault, reported
+//!   with what stops arriving, and the stage is degraded until a peer is back. Nothing hangs:
+//!   the consumers of imported services see them go stale and fall back as they do for a
+//!   local producer that died.
+//! - **no surprise sockets**: the Zenoh session opens exactly `listen` and `connect`; no
+//!   multicast scouting, no gossip.
+//!
+//! Lockstep cannot span two machines' clocks: the pipeline config refuses a bridge in lockstep.
+
+pub mod bench;
+pub mod params;
+pub mod wire;
+
+use bowden_interfaces::{
+    services, JointCommand, JointEstimate, JointTarget, MarkerSet, ModelUpdate, MotorCommand, PlantState,
+    SafetyCommand, SampleHeader,
+};
+use bowden_runtime::ports::{FrameInput, FrameOutput, Input, Output, PortContext, PortError, Wakeup};
+use bowden_runtime::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
+use bowden_runtime::sys::{monotonic_ns, EventFd};
+use bowden_runtime::Message;
+use crossbeam::queue::ArrayQueue;
+use std::collections::BTreeSet;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use zenoh::Wait;
+
+pub use params::BridgeParams;
+use wire::{WireError, WireType};
+
+/// A TCP port on 127.0.0.1 free at the time of the call (for loopback links in tests and
+/// benches; another process may take it before it is used).
+pub fn free_loopback_port() -> std::io::Result<u16> {
+    Ok(std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port())
+}
+
+/// iceoryx2's inter-process variant with thread-safe ports (same shared memory as `ipc`).
+type Ts = iceoryx2::service::ipc_threadsafe::Service;
+
+/// What Zenoh's threads hand to the stage: peer events, and a wake-up for them.
+struct Shared {
+    wake: EventFd,
+    peers: ArrayQueue<PeerEvent>,
+}
+
+/// One imported service, driven by Zenoh's receive thread.
+struct ImportSink {
+    service: String,
+    ty: WireType,
+    max_frame: usize,
+    port: Mutex<(Box<dyn ImportPort + Send>, Wakeup<Ts>)>,
+    published: AtomicU64,
+    rejected: AtomicU64,
+    /// iceoryx2 refused a publish (counted as faults).
+    publish_errors: AtomicU64,
+    first_problem: Mutex<Option<String>>,
+    stage: String,
+}
+
+impl ImportSink {
+    /// Checks and republishes one message (runs on a Zenoh thread).
+    fn deliver(&self, msg: &[u8]) {
+        let body = match wire::decode(self.ty, msg) {
+            Ok(b) => b,
+            Err(e) => return self.problem(&self.rejected, format!("refused: {e}")),
+        };
+        let Ok(mut guard) = self.port.lock() else { return };
+        let (port, wake) = &mut *guard;
+        match port.publish(body, self.max_frame) {
+            Ok(Ok(_)) => {
+                self.published.fetch_add(1, Ordering::Relaxed);
+                let _ = wake.notify();
+            }
+            Ok(Err(e)) => {
+                drop(guard);
+                self.problem(&self.rejected, format!("refused: {e}"))
+            }
+            Err(e) => {
+                drop(guard);
+                self.problem(&self.publish_errors, format!("not published: {e}"))
+            }
+        }
+    }
+
+    fn problem(&self, counter: &AtomicU64, what: String) {
+        let n = counter.fetch_add(1, Ordering::Relaxed);
+        let msg = format!("message on `{}` from the peer {what}", self.service);
+        // The first few in the log, then only counted (a misconfigured peer sends many).
+        if n < 5 {
+            eprintln!("[{}] bridge: {msg}", self.stage);
+        }
+        if let Ok(mut f) = self.first_problem.lock() {
+            f.get_or_insert(msg);
+        }
+    }
+}
+
+enum PeerEvent {
+    Joined(String),
+    Left(String),
+}
+
+/// A service read from iceoryx2 and sent to the peer.
+trait ExportPort {
+    /// Hands every queued sample to `send` as its wire parts, oldest first.
+    fn drain(&mut self, send: &mut dyn FnMut(&[&[u8]], &SampleHeader));
+}
+
+struct SampleExport<T: Message>(Input<T>);
+
+impl<T: Message> ExportPort for SampleExport<T> {
+    fn drain(&mut self, send: &mut dyn FnMut(&[&[u8]], &SampleHeader)) {
+        while let Some(v) = self.0.recv() {
+            send(&[v.as_bytes()], v.header());
+        }
+    }
+}
+
+struct FrameExport(FrameInput);
+
+impl ExportPort for FrameExport {
+    fn drain(&mut self, send: &mut dyn FnMut(&[&[u8]], &SampleHeader)) {
+        while let Some(f) = self.0.recv() {
+            let h = *f.user_header();
+            send(&[h.as_bytes(), f.payload()], &h.header);
+        }
+    }
+}
+
+/// A service received from the peer and published on iceoryx2.
+trait ImportPort {
+    /// Publishes one checked body; returns its header.
+    fn publish(&mut self, body: &[u8], max_frame: usize) -> Result<Result<SampleHeader, WireError>, PortError>;
+}
+
+struct SampleImport<T: Message>(Output<T, Ts>);
+
+impl<T: Message> ImportPort for SampleImport<T> {
+    fn publish(&mut self, body: &[u8], _: usize) -> Result<Result<SampleHeader, WireError>, PortError> {
+        let Some(v) = T::from_bytes(body) else {
+            return Ok(Err(WireError::SampleSize {
+                actual: body.len(),
+                expected: core::mem::size_of::<T>(),
+            }));
+        };
+        self.0.publish_raw(v)?;
+        Ok(Ok(*v.header()))
+    }
+}
+
+struct FrameImport(FrameOutput<Ts>);
+
+impl ImportPort for FrameImport {
+    fn publish(&mut self, body: &[u8], max_frame: usize) -> Result<Result<SampleHeader, WireError>, PortError> {
+        let (h, payload) = match wire::split_frame(body, max_frame) {
+            Ok(x) => x,
+            Err(e) => return Ok(Err(e)),
+        };
+        self.0.publish_raw(&h, payload)?;
+        Ok(Ok(h.header))
+    }
+}
+
+struct Export {
+    service: String,
+    ty: WireType,
+    port: Box<dyn ExportPort>,
+    publisher: zenoh::pubsub::Publisher<'static>,
+    sent: u64,
+    send_errors: u64,
+}
+
+struct Import {
+    sink: Arc<ImportSink>,
+    _subscriber: zenoh::pubsub::Subscriber<()>,
+}
+
+/// The bridge as a pipeline stage.
+pub struct BridgeStage {
+    name: String,
+    params: BridgeParams,
+    session: Option<zenoh::Session>,
+    zid: String,
+    shared: Arc<Shared>,
+    exports: Vec<Export>,
+    imports: Vec<Import>,
+    /// The thread-safe iceoryx2 node the imports publish through (kept alive with them).
+    _import_ports: PortContext<Ts>,
+    _token: Option<zenoh::liveliness::LivelinessToken>,
+    _peer_watch: Option<zenoh::pubsub::Subscriber<()>>,
+    peers: BTreeSet<String>,
+    peers_seen: u64,
+    started_ns: u64,
+    no_peer_reported: bool,
+    faults: u64,
+}
+
+fn build_err(env: &StageEnv<'_>, what: &str, e: impl std::fmt::Display) -> StageBuildError {
+    env.error(format!(
+        "{}: bridge `{}`: {what}: {e}",
+        env.pipeline.origin, env.spec.name
+    ))
+}
+
+impl BridgeStage {
+    pub fn from_env(env: &StageEnv<'_>) -> Result<Self, StageBuildError> {
+        let params: BridgeParams = env.params()?;
+        params.validate().map_err(|p| {
+            env.error(format!(
+                "{}: [node.params] of `{}`: {p}",
+                env.pipeline.origin, env.spec.name
+            ))
+        })?;
+        // The pipeline config validated the service lists (kind `bridge`): imports are this
+        // stage's outputs, exports its side inputs.
+        let export_services = env.spec.side_inputs.clone();
+        let import_services = env.spec.outputs.clone();
+        let shared = Arc::new(Shared {
+            wake: EventFd::new().map_err(|e| build_err(env, "eventfd", e))?,
+            peers: ArrayQueue::new(64),
+        });
+
+        let config = params.zenoh_config().map_err(|e| build_err(env, "zenoh config", e))?;
+        let session = zenoh::open(config)
+            .wait()
+            .map_err(|e| build_err(env, "opening the Zenoh session", e))?;
+        let zid = session.zid().to_string();
+
+        let mut exports = Vec::new();
+        for s in &export_services {
+            let ty = WireType::of(s).ok_or_else(|| env.error(format!("cannot bridge service `{s}`")))?;
+            let port: Box<dyn ExportPort> = match s.as_str() {
+                services::RGBD_FRAME => Box::new(FrameExport(env.ports.frame_input(s, 4)?)),
+                _ => sample_export(env, s)?,
+            };
+            // Drop rather than block when the network cannot keep up: a bridge must never
+            // stall the pipeline it serves (newest data matters most).
+            let publisher = session
+                .declare_publisher(params.key_of(s))
+                .express(true)
+                .congestion_control(zenoh::qos::CongestionControl::Drop)
+                .wait()
+                .map_err(|e| build_err(env, &format!("declaring the publisher of `{s}`"), e))?;
+            exports.push(Export {
+                service: s.clone(),
+                ty,
+                port,
+                publisher,
+                sent: 0,
+                send_errors: 0,
+            });
+        }
+
+        let import_ports = PortContext::<Ts>::create(&format!("{}-import", env.spec.process), env.ports.settings())?;
+        let mut imports = Vec::new();
+        for s in &import_services {
+            let ty = WireType::of(s).ok_or_else(|| env.error(format!("cannot bridge service `{s}`")))?;
+            let port: Box<dyn ImportPort + Send> = match s.as_str() {
+                services::RGBD_FRAME => Box::new(FrameImport(import_ports.frame_output(s, params.max_frame_bytes)?)),
+                _ => sample_import(env, &import_ports, s)?,
+            };
+            let sink = Arc::new(ImportSink {
+                service: s.clone(),
+                ty,
+                max_frame: params.max_frame_bytes,
+                port: Mutex::new((port, import_ports.notifier(s)?)),
+                published: AtomicU64::new(0),
+                rejected: AtomicU64::new(0),
+                publish_errors: AtomicU64::new(0),
+                first_problem: Mutex::new(None),
+                stage: env.spec.name.clone(),
+            });
+            let sk = sink.clone();
+            let subscriber = session
+                .declare_subscriber(params.key_of(s))
+                .callback(move |sample| sk.deliver(&sample.payload().to_bytes()))
+                .wait()
+                .map_err(|e| build_err(env, &format!("declaring the subscriber of `{s}`"), e))?;
+            imports.push(Import {
+                sink,
+                _subscriber: subscriber,
+            });
+        }
+
+        // Peers: every bridge on this key prefix holds a liveliness token.
+        let token = session
+            .liveliness()
+            .declare_token(params.token_key(&zid))
+            .wait()
+            .map_err(|e| build_err(env, "declaring the liveliness token", e))?;
+        let sh = shared.clone();
+        let own = params.token_key(&zid);
+        let peer_watch = session
+            .liveliness()
+            .declare_subscriber(params.tokens_selector())
+            .history(true)
+            .callback(move |sample| {
+                let key = sample.key_expr().as_str().to_string();
+                if key == own {
+                    return;
+                }
+                let peer = key.rsplit('/').next().unwrap_or(&key).to_string();
+                let ev = match sample.kind() {
+                    zenoh::sample::SampleKind::Put => PeerEvent::Joined(peer),
+                    zenoh::sample::SampleKind::Delete => PeerEvent::Left(peer),
+                };
+                let _ = sh.peers.force_push(ev);
+                sh.wake.signal();
+            })
+            .wait()
+            .map_err(|e| build_err(env, "watching for peers", e))?;
+
+        Ok(Self {
+            name: env.spec.name.clone(),
+            params,
+            session: Some(session),
+            zid,
+            shared,
+            exports,
+            imports,
+            _import_ports: import_ports,
+            _token: Some(token),
+            _peer_watch: Some(peer_watch),
+            peers: BTreeSet::new(),
+            peers_seen: 0,
+            started_ns: monotonic_ns(),
+            no_peer_reported: false,
+            faults: 0,
+        })
+    }
+
+    /// This side's Zenoh session id.
+    pub fn zid(&self) -> &str {
+        &self.zid
+    }
+
+    /// Peers currently connected (their Zenoh session ids).
+    pub fn peers(&self) -> impl Iterator<Item = &str> {
+        self.peers.iter().map(|s| s.as_str())
+    }
+
+    fn peer_events(&mut self) {
+        while let Some(ev) = self.shared.peers.pop() {
+            match ev {
+                PeerEvent::Joined(p) => {
+                    if self.peers.insert(p.clone()) {
+                        self.peers_seen += 1;
+                        eprintln!("[{}] bridge: peer {p} connected", self.name);
+                    }
+                }
+                PeerEvent::Left(p) => {
+                    if self.peers.remove(&p) {
+                        self.faults += 1;
+                        let stops: Vec<&str> = self.imports.iter().map(|i| i.sink.service.as_str()).collect();
+                        eprintln!(
+                            "[{}] bridge: fault: peer {p} lost (its process ended, or nothing arrived for {} ms); \
+                             {} until a peer is back",
+                            self.name,
+                            self.params.lease_ms,
+                            if stops.is_empty() {
+                                "exports go nowhere".to_string()
+                            } else {
+                                format!("no more {}", stops.join(", "))
+                            }
+                        );
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn sample_export(env: &StageEnv<'_>, s: &str) -> Result<Box<dyn ExportPort>, StageBuildError> {
+    fn e<T: Message>(env: &StageEnv<'_>, s: &str) -> Result<Box<dyn ExportPort>, StageBuildError> {
+        Ok(Box::new(SampleExport::<T>(env.ports.input::<T>(s, 64)?)))
+    }
+    match s {
+        services::JOINT_TARGET => e::<JointTarget>(env, s),
+        services::JOINT_COMMAND => e::<JointCommand>(env, s),
+        services::MOTOR_COMMAND => e::<MotorCommand>(env, s),
+        services::PLANT_STATE => e::<PlantState>(env, s),
+        services::MARKER_SET => e::<MarkerSet>(env, s),
+        services::JOINT_ESTIMATE => e::<JointEstimate>(env, s),
+        services::SAFETY => e::<SafetyCommand>(env, s),
+        services::MODEL_UPDATE => e::<ModelUpdate>(env, s),
+        other => Err(env.error(format!("cannot bridge service `{other}`"))),
+    }
+}
+
+fn sample_import(
+    env: &StageEnv<'_>,
+    ports: &PortContext<Ts>,
+    s: &str,
+) -> Result<Box<dyn ImportPort + Send>, StageBuildError> {
+    fn i<T: Message>(ports: &PortContext<Ts>, s: &str) -> Result<Box<dyn ImportPort + Send>, StageBuildError> {
+        Ok(Box::new(SampleImport::<T>(ports.output::<T>(s)?)))
+    }
+    match s {
+        services::JOINT_TARGET => i::<JointTarget>(ports, s),
+        services::JOINT_COMMAND => i::<JointCommand>(ports, s),
+        services::MOTOR_COMMAND => i::<MotorCommand>(ports, s),
+        services::PLANT_STATE => i::<PlantState>(ports, s),
+        services::MARKER_SET => i::<MarkerSet>(ports, s),
+        services::JOINT_ESTIMATE => i::<JointEstimate>(ports, s),
+        services::SAFETY => i::<SafetyCommand>(ports, s),
+        services::MODEL_UPDATE => i::<ModelUpdate>(ports, s),
+        other => Err(env.error(format!("cannot bridge service `{other}`"))),
+    }
+}
+
+impl Stage for BridgeStage {
+    fn step(&mut self, _cx: &StepCx) -> Result<StepReport, StageError> {
+        self.shared.wake.drain();
+        self.peer_events();
+        let mut rep = StepReport::IDLE;
+
+        // iceoryx2 → network.
+        let mut send_faults = 0;
+        for exp in self.exports.iter_mut() {
+            let (ty, publisher) = (exp.ty, &exp.publisher);
+            let (mut sent, mut errors, mut origin) = (0u64, 0u64, rep.t_origin_ns);
+            exp.port
+                .drain(&mut |parts, h| match publisher.put(wire::encode(ty, parts)).wait() {
+                    Ok(()) => {
+                        sent += 1;
+                        origin = Some(origin.map_or(h.t_origin_ns, |t| t.max(h.t_origin_ns)));
+                    }
+                    Err(_) => errors += 1,
+                });
+            // The executor records "handed to the network" minus the sample's origin.
+            rep.t_origin_ns = origin;
+            exp.sent += sent;
+            exp.send_errors += errors;
+            send_faults += errors;
+            rep.active |= sent > 0;
+        }
+        self.faults += send_faults;
+
+        if self.peers_seen == 0
+            && !self.no_peer_reported
+            && monotonic_ns().saturating_sub(self.started_ns) > self.params.peer_timeout_ms * 1_000_000
+        {
+            self.no_peer_reported = true;
+            self.faults += 1;
+            eprintln!(
+                "[{}] bridge: fault: no peer after {} ms (listen {:?}, connect {:?}, key prefix `{}`): \
+                 is the other side running with matching endpoints and key prefix?",
+                self.name, self.params.peer_timeout_ms, self.params.listen, self.params.connect, self.params.key_prefix
+            );
+        }
+        Ok(rep)
+    }
+
+    fn counters(&self) -> StageCounters {
+        let sum = |f: fn(&ImportSink) -> &AtomicU64| -> u64 {
+            self.imports.iter().map(|i| f(&i.sink).load(Ordering::Relaxed)).sum()
+        };
+        StageCounters {
+            rejected: sum(|s| &s.rejected),
+            faults: self.faults + sum(|s| &s.publish_errors),
+            degraded: self.peers.is_empty(),
+            estop: false,
+        }
+    }
+
+    fn wake_fd(&self) -> Option<std::os::fd::RawFd> {
+        Some(self.shared.wake.fd())
+    }
+
+    fn finish(&mut self) -> Result<(), StageError> {
+        // Withdraw the token first so the peer sees this side leave at once.
+        self._token.take();
+        self._peer_watch.take();
+        if let Some(s) = self.session.take() {
+            let _ = s.close().wait();
+        }
+        Ok(())
+    }
+
+    fn summary(&self) -> Vec<String> {
+        let c = self.counters();
+        let mut v = vec![format!(
+            "{}: bridge {} (key prefix `{}`): {} peer(s) now, {} seen; {} refused, {} fault(s)",
+            self.name,
+            self.zid,
+            self.params.key_prefix,
+            self.peers.len(),
+            self.peers_seen,
+            c.rejected,
+            c.faults
+        )];
+        for e in &self.exports {
+            v.push(format!(
+                "{}: exported `{}`: {} sent, {} send errors",
+                self.name, e.service, e.sent, e.send_errors
+            ));
+        }
+        for i in &self.imports {
+            let s = &i.sink;
+            v.push(format!(
+                "{}: imported `{}`: {} published, {} refused, {} publish errors",
+                self.name,
+                s.service,
+                s.published.load(Ordering::Relaxed),
+                s.rejected.load(Ordering::Relaxed),
+                s.publish_errors.load(Ordering::Relaxed)
+            ));
+            if let Some(p) = s.first_problem.lock().ok().and_then(|f| f.clone()) {
+                v.push(format!("{}: first problem: {p}", self.name));
+            }
+        }
+        v
+    }
+}
