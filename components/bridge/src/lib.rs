@@ -29,11 +29,10 @@ pub mod bench;
 pub mod params;
 pub mod wire;
 
-use bowden_interfaces::{
-    services, JointCommand, JointEstimate, JointTarget, MarkerSet, ModelUpdate, MotorCommand, PlantState,
-    SafetyCommand, SampleHeader,
+use bowden_interfaces::SampleHeader;
+use bowden_runtime::ports::{
+    visit_payload, FrameInput, FrameOutput, Input, Output, PayloadVisitor, PortContext, PortError, Wakeup,
 };
-use bowden_runtime::ports::{FrameInput, FrameOutput, Input, Output, PortContext, PortError, Wakeup};
 use bowden_runtime::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
 use bowden_runtime::sys::{monotonic_ns, EventFd};
 use bowden_runtime::Message;
@@ -247,10 +246,8 @@ impl BridgeStage {
         let mut exports = Vec::new();
         for s in &export_services {
             let ty = WireType::of(s).ok_or_else(|| env.error(format!("cannot bridge service `{s}`")))?;
-            let port: Box<dyn ExportPort> = match s.as_str() {
-                services::RGBD_FRAME => Box::new(FrameExport(env.ports.frame_input(s, 4)?)),
-                _ => sample_export(env, s)?,
-            };
+            let port = visit_payload(s, MakeExport { env, service: s })
+                .unwrap_or_else(|| Err(env.error(format!("cannot bridge service `{s}`"))))?;
             // Drop rather than block when the network cannot keep up: a bridge must never
             // stall the pipeline it serves (newest data matters most).
             let publisher = session
@@ -273,10 +270,13 @@ impl BridgeStage {
         let mut imports = Vec::new();
         for s in &import_services {
             let ty = WireType::of(s).ok_or_else(|| env.error(format!("cannot bridge service `{s}`")))?;
-            let port: Box<dyn ImportPort + Send> = match s.as_str() {
-                services::RGBD_FRAME => Box::new(FrameImport(import_ports.frame_output(s, params.max_frame_bytes)?)),
-                _ => sample_import(env, &import_ports, s)?,
+            let make = MakeImport {
+                ports: &import_ports,
+                service: s,
+                max_frame: params.max_frame_bytes,
             };
+            let port =
+                visit_payload(s, make).unwrap_or_else(|| Err(env.error(format!("cannot bridge service `{s}`"))))?;
             let sink = Arc::new(ImportSink {
                 service: s.clone(),
                 ty,
@@ -388,41 +388,40 @@ impl BridgeStage {
     }
 }
 
-fn sample_export(env: &StageEnv<'_>, s: &str) -> Result<Box<dyn ExportPort>, StageBuildError> {
-    fn e<T: Message>(env: &StageEnv<'_>, s: &str) -> Result<Box<dyn ExportPort>, StageBuildError> {
-        Ok(Box::new(SampleExport::<T>(env.ports.input::<T>(s, 64)?)))
+/// The export port of a service: samples or frames, read on iceoryx2.
+struct MakeExport<'a, 'e> {
+    env: &'a StageEnv<'e>,
+    service: &'a str,
+}
+
+impl PayloadVisitor for MakeExport<'_, '_> {
+    type Output = Result<Box<dyn ExportPort>, StageBuildError>;
+    fn sample<T: Message>(self) -> Self::Output {
+        Ok(Box::new(SampleExport::<T>(
+            self.env.ports.input::<T>(self.service, 64)?,
+        )))
     }
-    match s {
-        services::JOINT_TARGET => e::<JointTarget>(env, s),
-        services::JOINT_COMMAND => e::<JointCommand>(env, s),
-        services::MOTOR_COMMAND => e::<MotorCommand>(env, s),
-        services::PLANT_STATE => e::<PlantState>(env, s),
-        services::MARKER_SET => e::<MarkerSet>(env, s),
-        services::JOINT_ESTIMATE => e::<JointEstimate>(env, s),
-        services::SAFETY => e::<SafetyCommand>(env, s),
-        services::MODEL_UPDATE => e::<ModelUpdate>(env, s),
-        other => Err(env.error(format!("cannot bridge service `{other}`"))),
+    fn frame(self) -> Self::Output {
+        Ok(Box::new(FrameExport(self.env.ports.frame_input(self.service, 4)?)))
     }
 }
 
-fn sample_import(
-    env: &StageEnv<'_>,
-    ports: &PortContext<Ts>,
-    s: &str,
-) -> Result<Box<dyn ImportPort + Send>, StageBuildError> {
-    fn i<T: Message>(ports: &PortContext<Ts>, s: &str) -> Result<Box<dyn ImportPort + Send>, StageBuildError> {
-        Ok(Box::new(SampleImport::<T>(ports.output::<T>(s)?)))
+/// The import port of a service, published through the thread-safe node.
+struct MakeImport<'a> {
+    ports: &'a PortContext<Ts>,
+    service: &'a str,
+    max_frame: usize,
+}
+
+impl PayloadVisitor for MakeImport<'_> {
+    type Output = Result<Box<dyn ImportPort + Send>, StageBuildError>;
+    fn sample<T: Message>(self) -> Self::Output {
+        Ok(Box::new(SampleImport::<T>(self.ports.output::<T>(self.service)?)))
     }
-    match s {
-        services::JOINT_TARGET => i::<JointTarget>(ports, s),
-        services::JOINT_COMMAND => i::<JointCommand>(ports, s),
-        services::MOTOR_COMMAND => i::<MotorCommand>(ports, s),
-        services::PLANT_STATE => i::<PlantState>(ports, s),
-        services::MARKER_SET => i::<MarkerSet>(ports, s),
-        services::JOINT_ESTIMATE => i::<JointEstimate>(ports, s),
-        services::SAFETY => i::<SafetyCommand>(ports, s),
-        services::MODEL_UPDATE => i::<ModelUpdate>(ports, s),
-        other => Err(env.error(format!("cannot bridge service `{other}`"))),
+    fn frame(self) -> Self::Output {
+        Ok(Box::new(FrameImport(
+            self.ports.frame_output(self.service, self.max_frame)?,
+        )))
     }
 }
 

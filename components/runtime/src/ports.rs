@@ -89,6 +89,36 @@ impl_message! {
     ModelUpdate => "bowden::ModelUpdate",
 }
 
+/// Something done with the payload type of a service, for code that handles services by name
+/// (recorder, replay, bridge): [`visit_payload`] is the one place names map to types.
+pub trait PayloadVisitor {
+    type Output;
+    /// `service` carries fixed-size samples of type `T`.
+    fn sample<T: Message>(self) -> Self::Output;
+    /// `service` carries RGBD frames (`[u8]` with an `RgbdFrameHeader`).
+    fn frame(self) -> Self::Output;
+}
+
+/// Calls `v` with the payload type of `service` (a full bowden service name, without
+/// namespace); `None` if it is not one.
+pub fn visit_payload<V: PayloadVisitor>(service: &str, v: V) -> Option<V::Output> {
+    use bowden_interfaces::services as s;
+    Some(match service {
+        s::JOINT_TARGET => v.sample::<JointTarget>(),
+        s::JOINT_COMMAND => v.sample::<JointCommand>(),
+        s::MOTOR_COMMAND => v.sample::<MotorCommand>(),
+        s::PLANT_STATE => v.sample::<PlantState>(),
+        s::MARKER_SET => v.sample::<MarkerSet>(),
+        s::JOINT_ESTIMATE => v.sample::<JointEstimate>(),
+        s::COMPONENT_STATUS => v.sample::<ComponentStatus>(),
+        s::SAFETY => v.sample::<SafetyCommand>(),
+        s::CLOCK => v.sample::<ClockTick>(),
+        s::MODEL_UPDATE => v.sample::<ModelUpdate>(),
+        s::RGBD_FRAME => v.frame(),
+        _ => return None,
+    })
+}
+
 /// Something went wrong with an iceoryx2 port; names the service.
 #[derive(Debug, thiserror::Error)]
 pub enum PortError {

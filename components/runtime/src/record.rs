@@ -20,12 +20,9 @@
 //! A log without a valid index (the recorder was killed) is still readable: the reader scans it.
 
 use crate::config::recorder_services;
-use crate::ports::{FrameInput, Input, Message};
+use crate::ports::{visit_payload, FrameInput, Input, Message, PayloadVisitor};
 use crate::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
-use bowden_interfaces::{
-    services, ClockTick, ComponentStatus, JointCommand, JointEstimate, JointTarget, MarkerSet, ModelUpdate,
-    MotorCommand, PlantState, RgbdFrameHeader, SafetyCommand,
-};
+use bowden_interfaces::{services, RgbdFrameHeader};
 use std::fs::File;
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
@@ -76,27 +73,21 @@ pub fn fnv1a32(bytes: &[u8]) -> u32 {
 
 /// The payload type and size of a bowden service.
 pub fn service_type(service: &str) -> Option<(&'static str, u16, u32)> {
-    fn s<T: Message>() -> (&'static str, u16, u32) {
-        (T::TYPE_NAME, KIND_SAMPLE, core::mem::size_of::<T>() as u32)
+    struct TypeOf;
+    impl PayloadVisitor for TypeOf {
+        type Output = (&'static str, u16, u32);
+        fn sample<T: Message>(self) -> Self::Output {
+            (T::TYPE_NAME, KIND_SAMPLE, core::mem::size_of::<T>() as u32)
+        }
+        fn frame(self) -> Self::Output {
+            (
+                RgbdFrameHeader::TYPE_NAME,
+                KIND_FRAME,
+                core::mem::size_of::<RgbdFrameHeader>() as u32,
+            )
+        }
     }
-    Some(match service {
-        services::JOINT_TARGET => s::<JointTarget>(),
-        services::JOINT_COMMAND => s::<JointCommand>(),
-        services::MOTOR_COMMAND => s::<MotorCommand>(),
-        services::PLANT_STATE => s::<PlantState>(),
-        services::MARKER_SET => s::<MarkerSet>(),
-        services::JOINT_ESTIMATE => s::<JointEstimate>(),
-        services::COMPONENT_STATUS => s::<ComponentStatus>(),
-        services::SAFETY => s::<SafetyCommand>(),
-        services::CLOCK => s::<ClockTick>(),
-        services::MODEL_UPDATE => s::<ModelUpdate>(),
-        services::RGBD_FRAME => (
-            RgbdFrameHeader::TYPE_NAME,
-            KIND_FRAME,
-            core::mem::size_of::<RgbdFrameHeader>() as u32,
-        ),
-        _ => return None,
-    })
+    visit_payload(service, TypeOf)
 }
 
 /// One service of a log.
@@ -668,31 +659,32 @@ impl RecorderStage {
         let mut sources: Vec<(String, Box<dyn Source>)> = Vec::new();
         // A generous queue: in real time the recorder drains every 10 ms.
         const BUF: usize = 64;
-        for s in &services {
-            fn src<T: Message>(env: &StageEnv<'_>, s: &str, track: bool) -> Result<Box<dyn Source>, StageBuildError> {
+        struct MakeSource<'a, 'e> {
+            env: &'a StageEnv<'e>,
+            service: &'a str,
+        }
+        impl PayloadVisitor for MakeSource<'_, '_> {
+            type Output = Result<Box<dyn Source>, StageBuildError>;
+            fn sample<T: Message>(self) -> Self::Output {
+                // Several publishers (statuses, e-stop tools) or sparse streams: no gap count.
+                let track_gaps =
+                    ![services::COMPONENT_STATUS, services::SAFETY, services::MODEL_UPDATE].contains(&self.service);
                 Ok(Box::new(SampleSource::<T> {
-                    input: env.ports.input::<T>(s, BUF)?,
+                    input: self.env.ports.input::<T>(self.service, BUF)?,
                     last_seq: None,
-                    track_gaps: track,
+                    track_gaps,
                 }))
             }
-            let b: Box<dyn Source> = match s.as_str() {
-                services::JOINT_TARGET => src::<JointTarget>(env, s, true)?,
-                services::JOINT_COMMAND => src::<JointCommand>(env, s, true)?,
-                services::MOTOR_COMMAND => src::<MotorCommand>(env, s, true)?,
-                services::PLANT_STATE => src::<PlantState>(env, s, true)?,
-                services::MARKER_SET => src::<MarkerSet>(env, s, true)?,
-                services::JOINT_ESTIMATE => src::<JointEstimate>(env, s, true)?,
-                services::COMPONENT_STATUS => src::<ComponentStatus>(env, s, false)?,
-                services::SAFETY => src::<SafetyCommand>(env, s, false)?,
-                services::CLOCK => src::<ClockTick>(env, s, true)?,
-                services::MODEL_UPDATE => src::<ModelUpdate>(env, s, false)?,
-                services::RGBD_FRAME => Box::new(FrameSource {
-                    input: env.ports.frame_input(s, 4)?,
+            fn frame(self) -> Self::Output {
+                Ok(Box::new(FrameSource {
+                    input: self.env.ports.frame_input(self.service, 4)?,
                     last_seq: None,
-                }),
-                other => return Err(env.error(format!("cannot record service `{other}`"))),
-            };
+                }))
+            }
+        }
+        for s in &services {
+            let b = visit_payload(s, MakeSource { env, service: s })
+                .unwrap_or_else(|| Err(env.error(format!("cannot record service `{s}`"))))?;
             sources.push((s.clone(), b));
         }
         let n = sources.len();

@@ -1,13 +1,10 @@
 //! `bowden replay`: feed a recorded log back onto its services (at the recorded pace or as fast
 //! as possible), and summarise a log.
 
-use crate::ports::{FrameOutput, Message, Output, PortContext, PortError, Wakeup};
+use crate::ports::{visit_payload, FrameOutput, Message, Output, PayloadVisitor, PortContext, PortError, Wakeup};
 use crate::record::{LogError, LogReader, KIND_FRAME};
 use crate::sys::{self, monotonic_ns};
-use bowden_interfaces::{
-    services, ClockTick, ComponentStatus, JointCommand, JointEstimate, JointTarget, MarkerSet, ModelUpdate,
-    MotorCommand, PlantState, RgbdFrameHeader, SafetyCommand, MAX_JOINTS,
-};
+use bowden_interfaces::{services, JointEstimate, MotorCommand, PlantState, RgbdFrameHeader, MAX_JOINTS};
 use serde::Serialize;
 use std::path::Path;
 
@@ -85,29 +82,35 @@ impl Sink for FrameSink {
 }
 
 fn sink_for(ports: &PortContext, service: &str, max_frame: usize) -> Result<Option<Box<dyn Sink>>, PortError> {
-    fn s<T: Message>(p: &PortContext, name: &str) -> Result<Option<Box<dyn Sink>>, PortError> {
-        Ok(Some(Box::new(SampleSink::<T> {
-            out: p.output::<T>(name)?,
-            wake: p.notifier(name)?,
-        })))
+    struct MakeSink<'a> {
+        ports: &'a PortContext,
+        service: &'a str,
+        max_frame: usize,
     }
-    match service {
-        services::JOINT_TARGET => s::<JointTarget>(ports, service),
-        services::JOINT_COMMAND => s::<JointCommand>(ports, service),
-        services::MOTOR_COMMAND => s::<MotorCommand>(ports, service),
-        services::PLANT_STATE => s::<PlantState>(ports, service),
-        services::MARKER_SET => s::<MarkerSet>(ports, service),
-        services::JOINT_ESTIMATE => s::<JointEstimate>(ports, service),
-        services::COMPONENT_STATUS => s::<ComponentStatus>(ports, service),
-        services::SAFETY => s::<SafetyCommand>(ports, service),
-        services::CLOCK => s::<ClockTick>(ports, service),
-        services::MODEL_UPDATE => s::<ModelUpdate>(ports, service),
-        services::RGBD_FRAME => Ok(Some(Box::new(FrameSink {
-            out: ports.frame_output(service, max_frame.max(1))?,
-            wake: ports.notifier(service)?,
-        }))),
-        _ => Ok(None),
+    impl PayloadVisitor for MakeSink<'_> {
+        type Output = Result<Box<dyn Sink>, PortError>;
+        fn sample<T: Message>(self) -> Self::Output {
+            Ok(Box::new(SampleSink::<T> {
+                out: self.ports.output::<T>(self.service)?,
+                wake: self.ports.notifier(self.service)?,
+            }))
+        }
+        fn frame(self) -> Self::Output {
+            Ok(Box::new(FrameSink {
+                out: self.ports.frame_output(self.service, self.max_frame.max(1))?,
+                wake: self.ports.notifier(self.service)?,
+            }))
+        }
     }
+    visit_payload(
+        service,
+        MakeSink {
+            ports,
+            service,
+            max_frame,
+        },
+    )
+    .transpose()
 }
 
 /// Republishes the records of `log` (only `only` services if given) under `ports`' prefix and
