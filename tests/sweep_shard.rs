@@ -5,7 +5,7 @@
 //! refused by name.
 
 mod cli_support;
-use cli_support::{bowden, fails_with, ok, repo};
+use cli_support::{bowden, fails_with, ok, repo, transfer_recipe};
 use std::path::Path;
 use std::process::{Command, Stdio};
 
@@ -245,18 +245,7 @@ fn transfer_shards_merge_into_the_local_report() {
     std::fs::write(
         &cfg,
         format!(
-            r#"seed = 7
-[recipe]
-samples = 3000
-excitation = "mixed"
-archs = ["tcn"]
-epochs = 100
-seq_len = 80
-repeats = 3
-trajectories = ["random", "circle", "zigzag"]
-controllers = ["uncalibrated", "paper", "newton"]
-tune = true
-base_controller = "{base}"
+            r#"{recipe}
 
 [[family]]
 name = "capstan"
@@ -268,7 +257,7 @@ name = "broken"
 plant = "plant-broken.toml"
 heldout_units = [1]
 "#,
-            base = r.join("configs/controller.toml").display(),
+            recipe = transfer_recipe(true),
             plant = r.join("configs/plant.toml").display(),
         ),
     )

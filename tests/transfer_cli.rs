@@ -4,7 +4,7 @@
 //! its step, bad configs name the field, and no shared memory is left behind.
 
 mod cli_support;
-use cli_support::{bowden, fails_with, ok, repo};
+use cli_support::{bowden, fails_with, ok, repo, transfer_recipe};
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -15,18 +15,7 @@ fn config(dir: &Path, recipe_extra: &str, family_extra: &str) -> PathBuf {
     let tune = bowden(&["tune", "--help"]).status.success();
     let r = repo();
     let text = format!(
-        r#"seed = 7
-[recipe]
-samples = 3000
-excitation = "mixed"
-archs = ["tcn"]
-epochs = 100
-seq_len = 80
-repeats = 3
-trajectories = ["random", "circle", "zigzag"]
-controllers = ["uncalibrated", "paper", "newton"]
-tune = {tune}
-base_controller = "{base}"
+        r#"{recipe}
 {recipe_extra}
 [[family]]
 name = "capstan"
@@ -35,7 +24,7 @@ tuning_units = [2026]
 heldout_units = [4242]
 {family_extra}
 "#,
-        base = r.join("configs/controller.toml").display(),
+        recipe = transfer_recipe(tune),
         plant = r.join("configs/plant.toml").display(),
     );
     let p = dir.join("transfer.toml");

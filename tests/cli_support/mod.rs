@@ -38,3 +38,23 @@ pub fn fails_with(out: &Output, needles: &[&str]) {
     }
     assert!(!err.contains("panicked"), "{err}");
 }
+
+/// The `seed` and `[recipe]` of a `bench transfer` config the tests share (the quick recipe over
+/// the three test paths, from the shipped TCN controller), without a trailing newline.
+pub fn transfer_recipe(tune: bool) -> String {
+    format!(
+        r#"seed = 7
+[recipe]
+samples = 3000
+excitation = "mixed"
+archs = ["tcn"]
+epochs = 100
+seq_len = 80
+repeats = 3
+trajectories = ["random", "circle", "zigzag"]
+controllers = ["uncalibrated", "paper", "newton"]
+tune = {tune}
+base_controller = "{base}""#,
+        base = repo().join("configs/controller.toml").display(),
+    )
+}

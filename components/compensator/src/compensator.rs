@@ -220,6 +220,20 @@ impl std::fmt::Debug for Compensator {
     }
 }
 
+/// Hands the worker the newest forward (sent) and inverse (desired) history windows of the
+/// models it handles; returns both windows.
+fn post_histories<'h>(w: &mut PrefixWorker, h: &'h History, fwd_l: usize, inv_l: usize) -> (&'h [f64], &'h [f64]) {
+    let fh = h.sent_tail(fwd_l - 1);
+    let ih = h.desired_tail(inv_l - 1);
+    if w.handles(FWD) {
+        w.post(FWD, fh);
+    }
+    if w.handles(INV) {
+        w.post(INV, ih);
+    }
+    (fh, ih)
+}
+
 fn load_model(
     cfg: &ControllerConfig,
     field: &'static str,
@@ -613,14 +627,7 @@ impl Compensator {
     /// starts right after the command went out.
     pub fn prepare(&mut self) {
         if let Some(w) = self.worker.as_mut() {
-            let fh = self.history.sent_tail(self.fwd_l - 1);
-            let ih = self.history.desired_tail(self.inv_l - 1);
-            if w.handles(FWD) {
-                w.post(FWD, fh);
-            }
-            if w.handles(INV) {
-                w.post(INV, ih);
-            }
+            let (fh, ih) = post_histories(w, &self.history, self.fwd_l, self.inv_l);
             // A swapped-in model has no prefix yet, and the worker first builds its own
             // evaluators of it: compute it here, after the command went out, rather than at
             // the start of the next step.
@@ -649,14 +656,7 @@ impl Compensator {
         let mut lag = 0;
         if let Some(w) = self.worker.as_mut() {
             // Both requests go out before either result is waited for.
-            let fh = self.history.sent_tail(self.fwd_l - 1);
-            let ih = self.history.desired_tail(self.inv_l - 1);
-            if w.handles(FWD) {
-                w.post(FWD, fh);
-            }
-            if w.handles(INV) {
-                w.post(INV, ih);
-            }
+            let (fh, ih) = post_histories(w, &self.history, self.fwd_l, self.inv_l);
             if let (true, Some(Evaluator::Incremental(n))) = (w.handles(FWD), self.fwd.as_mut()) {
                 lag = lag.max(w.sync(FWD, n, fh));
             }
