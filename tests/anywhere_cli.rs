@@ -4,22 +4,10 @@
 //! and `run` read the same files, outputs go under the working directory, and nothing is left
 //! in shared memory.
 
-use std::collections::BTreeSet;
+mod cli_support;
+use cli_support::{shm_files, shm_leaked_since};
 use std::path::Path;
 use std::process::{Command, Output};
-
-/// iceoryx2 files of lockstep pipelines (`bcol<pid>_…` of collect, `bev<pid>_…` of evaluate,
-/// this test's `bwany<pid>_` of run), as tests/transfer_cli.rs.
-fn shm_pipelines() -> BTreeSet<String> {
-    std::fs::read_dir("/dev/shm")
-        .map(|d| {
-            d.flatten()
-                .map(|e| e.file_name().to_string_lossy().into_owned())
-                .filter(|n| n.starts_with("bev") || n.starts_with("bcol") || n.starts_with("bwany"))
-                .collect()
-        })
-        .unwrap_or_default()
-}
 
 /// `bowden ARGS` in `cwd`, with the built-in copy extracted under `cache` and no $BOWDEN_HOME.
 fn bowden_in(cwd: &Path, cache: &Path, args: &[&str]) -> Output {
@@ -44,7 +32,7 @@ fn ok(args: &[&str], out: &Output) -> String {
 
 #[test]
 fn the_main_commands_run_from_an_empty_directory() {
-    let shm_before = shm_pipelines();
+    let shm_before = shm_files(&["bev", "bcol", "bwany"]);
     let tmp = tempfile::tempdir().unwrap();
     let (cwd, cache) = (tmp.path().join("work"), tmp.path().join("cache"));
     std::fs::create_dir_all(&cwd).unwrap();
@@ -150,7 +138,7 @@ fn the_main_commands_run_from_an_empty_directory() {
 
     // Everything the run wrote is under the working directory; the cache holds the copy.
     assert!(cache.join("bowden").is_dir());
-    let leaked: Vec<String> = shm_pipelines().difference(&shm_before).cloned().collect();
+    let leaked = shm_leaked_since(&shm_before, &["bev", "bcol", "bwany"]);
     assert!(leaked.is_empty(), "left in /dev/shm: {leaked:?}");
 }
 

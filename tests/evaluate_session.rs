@@ -5,31 +5,9 @@
 //! command gives the same bytes, and nothing is left in shared memory.
 
 mod cli_support;
-use cli_support::{bowden, fails_with, ok, repo};
+use cli_support::{bowden, fails_with, ok, repo, shm_files, shm_leaked_since};
 use std::collections::BTreeSet;
 use std::path::Path;
-
-/// iceoryx2 files of evaluate's lockstep pipelines (`bev<pid>_…`), as tests/transfer_cli.rs.
-fn shm_pipelines() -> BTreeSet<String> {
-    std::fs::read_dir("/dev/shm")
-        .map(|d| {
-            d.flatten()
-                .map(|e| e.file_name().to_string_lossy().into_owned())
-                .filter(|n| n.starts_with("bev"))
-                .collect()
-        })
-        .unwrap_or_default()
-}
-
-/// The pid in `bev<pid>_…`.
-fn owner_alive(name: &str) -> bool {
-    let digits: String = name
-        .trim_start_matches("bev")
-        .chars()
-        .take_while(char::is_ascii_digit)
-        .collect();
-    !digits.is_empty() && Path::new("/proc").join(&digits).exists()
-}
 
 fn session(plant: &Path, report: &Path) -> String {
     ok(&bowden(&[
@@ -47,7 +25,7 @@ fn session(plant: &Path, report: &Path) -> String {
 
 #[test]
 fn a_session_through_a_slip_shows_the_lost_gain() {
-    let shm_before = shm_pipelines();
+    let shm_before = shm_files(&["bev"]);
     let dir = tempfile::tempdir().unwrap();
     let text = std::fs::read_to_string(repo().join("configs/plant-slack-slip.toml")).unwrap();
     assert!(text.contains("at_s = 120.0"));
@@ -145,11 +123,7 @@ fn a_session_through_a_slip_shows_the_lost_gain() {
     }
 
     // Nothing of the pipelines is left in shared memory.
-    let leaked: Vec<String> = shm_pipelines()
-        .difference(&shm_before)
-        .filter(|n| !owner_alive(n))
-        .cloned()
-        .collect();
+    let leaked = shm_leaked_since(&shm_before, &["bev"]);
     assert!(leaked.is_empty(), "left in /dev/shm: {leaked:?}");
 }
 

@@ -4,8 +4,7 @@
 //! its step, bad configs name the field, and no shared memory is left behind.
 
 mod cli_support;
-use cli_support::{bowden, fails_with, ok, repo, transfer_recipe};
-use std::collections::BTreeSet;
+use cli_support::{bowden, fails_with, ok, repo, shm_files, shm_leaked_since, transfer_recipe};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -32,29 +31,6 @@ heldout_units = [4242]
     p
 }
 
-/// iceoryx2 files of lockstep pipelines (`bcol<pid>_…` of collect, `bev<pid>_…` of evaluate).
-fn shm_pipelines() -> BTreeSet<String> {
-    std::fs::read_dir("/dev/shm")
-        .map(|d| {
-            d.flatten()
-                .map(|e| e.file_name().to_string_lossy().into_owned())
-                .filter(|n| n.starts_with("bcol") || n.starts_with("bev"))
-                .collect()
-        })
-        .unwrap_or_default()
-}
-
-/// The pid in `bcol<pid>_…` / `bev<pid>_…`.
-fn owner_alive(name: &str) -> bool {
-    let digits: String = name
-        .trim_start_matches("bcol")
-        .trim_start_matches("bev")
-        .chars()
-        .take_while(char::is_ascii_digit)
-        .collect();
-    !digits.is_empty() && Path::new("/proc").join(&digits).exists()
-}
-
 fn steps(v: &serde_json::Value) -> Vec<(String, String)> {
     v["units"][0]["steps"]
         .as_array()
@@ -71,7 +47,7 @@ fn steps(v: &serde_json::Value) -> Vec<(String, String)> {
 
 #[test]
 fn quick_transfer_runs_resumes_and_reports() {
-    let shm_before = shm_pipelines();
+    let shm_before = shm_files(&["bcol", "bev"]);
     let tmp = tempfile::tempdir().unwrap();
     // A second family whose plant file the simulator refuses: its unit fails at `collect`, the
     // bench goes on with the other, reports the failure and exits non-zero.
@@ -82,10 +58,15 @@ fn quick_transfer_runs_resumes_and_reports() {
         plant.replace("\nplays = 6\n", "\nplays = \"six\"\n"),
     )
     .unwrap();
-    // An LSTM forward model trained only to judge tune's candidates (`tune --judge`).
+    // An LSTM forward model trained only to judge tune's candidates (`tune --judge`), and the
+    // tuned controller evaluated a second time with vision feedback.
+    let extra = format!(
+        "judge_archs = [\"lstm\"]\n[recipe.feedback]\nconfig = \"{}\"\ncamera_fps = 10.0",
+        repo().join("configs/controller-feedback.toml").display()
+    );
     let cfg = config(
         tmp.path(),
-        "judge_archs = [\"lstm\"]",
+        &extra,
         "[[family]]\nname = \"broken\"\nplant = \"plant-broken.toml\"\nheldout_units = [1]\n",
     );
     let out = tmp.path().join("out");
@@ -157,7 +138,7 @@ fn quick_transfer_runs_resumes_and_reports() {
     // A number for every trajectory × calibrated controller × metric.
     let rows = u["rows"].as_array().unwrap();
     for t in ["random", "circle", "zigzag"] {
-        for c in ["paper", "newton"] {
+        for c in ["paper", "newton", "paper+fb", "newton+fb"] {
             let row = rows
                 .iter()
                 .find(|r| r["trajectory"] == t && r["controller"] == c)
@@ -193,8 +174,30 @@ fn quick_transfer_runs_resumes_and_reports() {
             "train-tcn-inverse",
             "train-lstm-forward",
             "tune",
-            "evaluate"
+            "evaluate",
+            "feedback",
+            "evaluate-feedback"
         ]
+    );
+    // The feedback controller is the tuned one plus the [feedback] table, evaluated with frames
+    // during each held point.
+    let fb: toml::Table =
+        toml::from_str(&std::fs::read_to_string(unit_dir.join("controller-feedback.toml")).unwrap()).unwrap();
+    let tuned: toml::Table =
+        toml::from_str(&std::fs::read_to_string(unit_dir.join("controller.toml")).unwrap()).unwrap();
+    assert_eq!(fb["feedback"]["enabled"].as_bool(), Some(true));
+    assert_eq!(
+        (fb["mode"].clone(), fb["model_fwd"].clone()),
+        (tuned["mode"].clone(), tuned["model_fwd"].clone())
+    );
+    let eval_fb = std::fs::read_to_string(unit_dir.join("evaluate-feedback.done")).unwrap();
+    assert!(
+        eval_fb.contains("--camera-fps") && eval_fb.contains("controller-feedback.toml"),
+        "{eval_fb}"
+    );
+    assert!(
+        stdout.contains("## Goals (held-out)") && stdout.contains("| newton+fb |"),
+        "{stdout}"
     );
     // The judge rates candidates only: tune gets it with --judge, never as a controller model.
     let tune_stamp = std::fs::read_to_string(unit_dir.join("tune.done")).unwrap();
@@ -224,21 +227,20 @@ fn quick_transfer_runs_resumes_and_reports() {
         v2["units"][0]["rows"], v["units"][0]["rows"],
         "same results from the same files"
     );
-    assert!(stdout2.contains("6 step(s) *"), "{stdout2}");
+    assert!(stdout2.contains("8 step(s) *"), "{stdout2}");
 
     // An unfinished step (no stamp) reruns, with what depends on it; the rest is kept.
     std::fs::remove_file(unit_dir.join("tune.done")).unwrap();
     ok(&bowden(&args));
     let v3: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("transfer.json")).unwrap()).unwrap();
     let st: Vec<String> = steps(&v3).into_iter().map(|(_, s)| s).collect();
-    assert_eq!(st, ["skipped", "skipped", "skipped", "skipped", "ran", "ran"]);
+    assert_eq!(
+        st,
+        ["skipped", "skipped", "skipped", "skipped", "ran", "ran", "ran", "ran"]
+    );
 
     // Nothing of the pipelines is left in shared memory.
-    let leaked: Vec<String> = shm_pipelines()
-        .difference(&shm_before)
-        .filter(|n| !owner_alive(n))
-        .cloned()
-        .collect();
+    let leaked = shm_leaked_since(&shm_before, &["bcol", "bev"]);
     assert!(leaked.is_empty(), "left in /dev/shm: {leaked:?}");
 }
 

@@ -141,6 +141,11 @@ pub struct Recipe {
     /// what it minimises. An architecture here may also be in `archs` (then it is trained once).
     #[serde(default)]
     pub judge_archs: Vec<String>,
+    /// Inverse models trained as further controller candidates beside `archs`' pairs: `tune`
+    /// pairs each with every forward model of `archs` and keeps what validates best (e.g. the
+    /// LSTM inverse of the accurate controller). An architecture here must not be in `archs`.
+    #[serde(default)]
+    pub inverse_archs: Vec<String>,
     /// `train --epochs`.
     pub epochs: usize,
     /// `train --early-stop`.
@@ -168,6 +173,27 @@ pub struct Recipe {
     pub tune: bool,
     /// `tune --base`: the controller config the unit's is made from.
     pub base_controller: PathBuf,
+    /// Vision feedback on top of the unit's tuned controller (docs/architecture.md, "Vision
+    /// feedback"): evaluated a second time with it, as controllers `paper+fb`, `newton+fb`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub feedback: Option<FeedbackRecipe>,
+}
+
+/// `[recipe.feedback]`: the same `[feedback]` settings for every unit, added to the controller
+/// `tune` chose for it.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FeedbackRecipe {
+    /// A controller file whose `[feedback]` table is added to each unit's controller (its other
+    /// settings are not used).
+    pub config: PathBuf,
+    /// `evaluate --camera-fps`: frames during each held point for the feedback to act on.
+    pub camera_fps: f64,
+}
+
+/// The name of controller `c` with vision feedback on.
+fn fb_name(c: &str) -> String {
+    format!("{c}+fb")
 }
 
 /// `[recipe.per_arch.ARCH]`: what differs for one architecture.
@@ -238,11 +264,23 @@ impl TransferConfig {
                 return Err(format!("recipe.judge_archs: `{a}` appears twice"));
             }
         }
-        for (arch, o) in &r.per_arch {
-            if !r.archs.contains(arch) && !r.judge_archs.contains(arch) {
+        for (i, a) in r.inverse_archs.iter().enumerate() {
+            a.parse::<Arch>()
+                .map_err(|e| format!("recipe.inverse_archs[{i}]: {e}"))?;
+            if r.inverse_archs[..i].contains(a) {
+                return Err(format!("recipe.inverse_archs: `{a}` appears twice"));
+            }
+            if r.archs.contains(a) {
                 return Err(format!(
-                    "recipe.per_arch.{arch}: not one of recipe.archs {:?} or recipe.judge_archs {:?}",
-                    r.archs, r.judge_archs
+                    "recipe.inverse_archs: `{a}` is in recipe.archs already (trained in both directions)"
+                ));
+            }
+        }
+        for (arch, o) in &r.per_arch {
+            if !r.archs.contains(arch) && !r.judge_archs.contains(arch) && !r.inverse_archs.contains(arch) {
+                return Err(format!(
+                    "recipe.per_arch.{arch}: not one of recipe.archs {:?}, recipe.judge_archs {:?} or recipe.inverse_archs {:?}",
+                    r.archs, r.judge_archs, r.inverse_archs
                 ));
             }
             if o.epochs == Some(0) || o.early_stop == Some(0) {
@@ -284,6 +322,14 @@ impl TransferConfig {
         }
         if !r.controllers.iter().any(|c| c != "uncalibrated") {
             return Err("recipe.controllers: name at least one calibrated controller (paper, newton)".into());
+        }
+        if let Some(f) = &r.feedback {
+            if !(f.camera_fps.is_finite() && f.camera_fps > 0.0) {
+                return Err(format!(
+                    "recipe.feedback.camera_fps: must be a positive frame rate, got {}",
+                    f.camera_fps
+                ));
+            }
         }
         if self.families.is_empty() {
             return Err("family: give at least one [[family]]".into());
@@ -488,6 +534,8 @@ struct Ctx {
     seed: u64,
     threads: usize,
     base_controller: PathBuf,
+    /// `recipe.feedback.config`, resolved and checked to hold a `[feedback]` table.
+    feedback_config: Option<PathBuf>,
     config_file: PathBuf,
     mp: MultiProgress,
 }
@@ -772,6 +820,37 @@ fn unit_plant_text(family_plant: &Path, unit: u64) -> Result<String> {
     ))
 }
 
+/// The unit's controller with the `[feedback]` table of `feedback_file` added (replacing one it
+/// may have).
+fn controller_with_feedback(controller: &Path, feedback_file: &Path, out: &Path) -> Result<()> {
+    let text = std::fs::read_to_string(controller).with_context(|| format!("reading {}", controller.display()))?;
+    let mut t: toml::Table = toml::from_str(&text).with_context(|| format!("parsing {}", controller.display()))?;
+    t.insert("feedback".into(), feedback_table(feedback_file)?);
+    // Model paths are relative to the controller's own directory: `out` is written beside it.
+    write_atomic(
+        out,
+        &format!(
+            "# {} with the [feedback] settings of {} (written by `bowden bench transfer`).\n{}",
+            controller.display(),
+            feedback_file.display(),
+            toml::to_string(&t)?
+        ),
+    )
+}
+
+/// The `[feedback]` table of a controller file, which must switch it on.
+fn feedback_table(file: &Path) -> Result<toml::Value> {
+    let text = std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
+    let t: toml::Table = toml::from_str(&text).with_context(|| format!("parsing {}", file.display()))?;
+    match t.get("feedback") {
+        Some(v @ toml::Value::Table(f)) if f.get("enabled").and_then(toml::Value::as_bool) == Some(true) => {
+            Ok(v.clone())
+        }
+        Some(toml::Value::Table(_)) => bail!("{}: [feedback] does not set enabled = true", file.display()),
+        _ => bail!("{}: no [feedback] table", file.display()),
+    }
+}
+
 /// `recipe.tune = false`: the base controller with the unit's first forward/inverse models.
 fn controller_from_base(base: &Path, fwd: &Path, inv: &Path, out: &Path) -> Result<()> {
     let text = std::fs::read_to_string(base).with_context(|| format!("reading {}", base.display()))?;
@@ -800,7 +879,11 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
         bar,
         records: Vec::new(),
         stamps: Default::default(),
-        total_steps: 3 + 2 * r.archs.len() + r.judge_archs.iter().filter(|a| !r.archs.contains(a)).count(),
+        total_steps: 3
+            + 2 * r.archs.len()
+            + r.judge_archs.iter().filter(|a| !r.archs.contains(a)).count()
+            + r.inverse_archs.len()
+            + if r.feedback.is_some() { 2 } else { 0 },
     };
     let t0 = Instant::now();
     let result = (|| -> std::result::Result<Vec<Row>, Failure> {
@@ -848,17 +931,23 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
             &[],
             std::slice::from_ref(&data),
         )?;
-        // 3. Train every architecture in both directions, and the judges' forward models.
+        // 3. Train every architecture in both directions, the judges' forward models and the
+        //    further inverse candidates.
         let models = dir.join("models");
         let _ = std::fs::create_dir_all(&models);
         let (mut fwd, mut inv, mut judges) = (Vec::new(), Vec::new(), Vec::new());
         let mut trained = Vec::new();
-        let jobs = r.archs.iter().flat_map(|a| [(a, "forward"), (a, "inverse")]).chain(
-            r.judge_archs
-                .iter()
-                .filter(|a| !r.archs.contains(a))
-                .map(|a| (a, "forward")),
-        );
+        let jobs = r
+            .archs
+            .iter()
+            .flat_map(|a| [(a, "forward"), (a, "inverse")])
+            .chain(
+                r.judge_archs
+                    .iter()
+                    .filter(|a| !r.archs.contains(a))
+                    .map(|a| (a, "forward")),
+            )
+            .chain(r.inverse_archs.iter().map(|a| (a, "inverse")));
         for (arch, direction) in jobs {
             {
                 let model = models.join(format!("{arch}_{direction}_L{}.onnx", r.seq_len));
@@ -898,13 +987,11 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
                 if r.judge_archs.contains(arch) && direction == "forward" {
                     judges.push(model.clone());
                 }
-                if !r.archs.contains(arch) {
-                    // A judge only.
-                } else if direction == "forward" {
-                    fwd.push(model);
-                } else {
+                if direction == "inverse" {
                     inv.push(model);
-                }
+                } else if r.archs.contains(arch) {
+                    fwd.push(model);
+                } // else a judge only.
             }
         }
         // 4. Choose the settings.
@@ -987,7 +1074,55 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
             &["tune".into()],
             &[summary.clone(), eval.clone()],
         )?;
-        rows_from_summary(&summary, r).map_err(|e| local_fail("report", format!("{e:#}")))
+        // 6. The same controller with vision feedback, the camera fast enough to give it frames.
+        if let (Some(fb), Some(fb_file)) = (&r.feedback, &ctx.feedback_config) {
+            let fb_controller = dir.join("controller-feedback.toml");
+            let (c, f, o) = (controller.clone(), fb_file.clone(), fb_controller.clone());
+            runner.step(
+                "feedback",
+                Action::Local(
+                    format!(
+                        "{} with [feedback] of {} → {}",
+                        controller.display(),
+                        fb_file.display(),
+                        fb_controller.display()
+                    ),
+                    Box::new(move || controller_with_feedback(&c, &f, &o)),
+                ),
+                &read_text(fb_file),
+                &["tune".into()],
+                std::slice::from_ref(&fb_controller),
+            )?;
+            let eval_fb = dir.join("eval-feedback");
+            let summary_fb = eval_fb.join("summary.json");
+            let mut args: Vec<String> = vec![
+                "evaluate".into(),
+                "--plant".into(),
+                s(&plant),
+                "--controller-config".into(),
+                s(&fb_controller),
+                "--camera-fps".into(),
+                fb.camera_fps.to_string(),
+                "--repeats".into(),
+                r.repeats.to_string(),
+                "--trajectories".into(),
+                r.trajectories.join(","),
+                "--controllers".into(),
+                r.controllers.join(","),
+            ];
+            if let Some(n) = r.max_points {
+                args.extend(["--max-points".into(), n.to_string()]);
+            }
+            args.extend(["--report".into(), s(&eval_fb), "--json-out".into(), s(&summary_fb)]);
+            runner.step(
+                "evaluate-feedback",
+                Action::Exe(args),
+                &eval_inputs,
+                &["feedback".into()],
+                &[summary_fb.clone(), eval_fb.clone()],
+            )?;
+        }
+        unit_rows(dir, r).map_err(|e| local_fail("report", format!("{e:#}")))
     })();
     let wall = t0.elapsed().as_secs_f64();
     let (rows, failure) = match result {
@@ -1145,7 +1280,18 @@ impl CellIn {
     }
 }
 
-fn rows_from_summary(path: &Path, r: &Recipe) -> Result<Vec<Row>> {
+/// A finished unit's rows: its evaluation's, then (with `recipe.feedback`) those with feedback.
+fn unit_rows(dir: &Path, r: &Recipe) -> Result<Vec<Row>> {
+    let mut rows = rows_from_summary(&dir.join("eval/summary.json"), r, "")?;
+    if r.feedback.is_some() {
+        rows.extend(rows_from_summary(&dir.join("eval-feedback/summary.json"), r, "+fb")?);
+    }
+    Ok(rows)
+}
+
+/// The rows of one evaluation; `suffix` is appended to the calibrated controllers' names
+/// (`+fb`: the evaluation with vision feedback).
+fn rows_from_summary(path: &Path, r: &Recipe, suffix: &str) -> Result<Vec<Row>> {
     let s: SummaryIn =
         serde_json::from_str(&std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?)
             .with_context(|| format!("parsing {}", path.display()))?;
@@ -1161,7 +1307,7 @@ fn rows_from_summary(path: &Path, r: &Recipe) -> Result<Vec<Row>> {
                 .six();
             rows.push(Row {
                 trajectory: t.clone(),
-                controller: c.clone(),
+                controller: format!("{c}{suffix}"),
                 error: e,
                 uncalibrated: u,
                 reduction_pct: Six::zip(&u, &e, reduction_pct),
@@ -1264,6 +1410,10 @@ struct Report {
     /// The calibrated controller with the best median truth position reduction over the
     /// held-out (unit, trajectory) pairs: the one plotted.
     best_mode: Option<String>,
+    /// The same among the feed-forward controllers only (without vision feedback).
+    best_feed_forward: Option<String>,
+    /// The issue's goals per calibrated controller, held-out units.
+    goals: Vec<GoalCheck>,
     summary: Vec<FamilySummary>,
     never_worse: Vec<NeverWorse>,
     timing: Vec<TimingRow>,
@@ -1275,8 +1425,15 @@ struct Report {
     wall_seconds: f64,
 }
 
+/// The feed-forward controllers, then (with `recipe.feedback`) the same with vision feedback.
 fn calibrated(r: &Recipe) -> Vec<String> {
-    r.controllers.iter().filter(|c| *c != "uncalibrated").cloned().collect()
+    let ff: Vec<String> = r.controllers.iter().filter(|c| *c != "uncalibrated").cloned().collect();
+    let fb: Vec<String> = if r.feedback.is_some() {
+        ff.iter().map(|c| fb_name(c)).collect()
+    } else {
+        Vec::new()
+    };
+    ff.into_iter().chain(fb).collect()
 }
 
 fn summarise(units: &[&UnitOutcome], families: &[Family], r: &Recipe) -> Vec<FamilySummary> {
@@ -1353,9 +1510,76 @@ fn never_worse(units: &[&UnitOutcome], r: &Recipe) -> Vec<NeverWorse> {
         .collect()
 }
 
-fn best_mode(units: &[&UnitOutcome], r: &Recipe) -> Option<String> {
+/// The issue's goals (#12) for one calibrated controller over the held-out pairs: every
+/// reduction ≥ 60 % and the median of each ≥ 75 %, for tip position, orientation and joint MAE,
+/// by vision and by truth.
+#[derive(Debug, Clone, Serialize)]
+struct GoalCheck {
+    controller: String,
+    /// The smallest reduction over every pair and metric, and where.
+    worst_pct: f64,
+    worst_at: String,
+    /// The smallest per-metric median.
+    lowest_median_pct: f64,
+    lowest_median_metric: String,
+    /// Pairs × metrics below 60 %.
+    below_60: usize,
+    checks: usize,
+    met: bool,
+}
+
+const GOAL_MIN_PCT: f64 = 60.0;
+const GOAL_MEDIAN_PCT: f64 = 75.0;
+
+fn goals(units: &[&UnitOutcome], r: &Recipe) -> Vec<GoalCheck> {
     calibrated(r)
         .into_iter()
+        .filter_map(|c| {
+            let (mut worst, mut worst_at, mut below, mut checks) = (f64::INFINITY, String::new(), 0, 0);
+            let mut per_metric: Vec<Vec<f64>> = vec![Vec::new(); METRICS.len()];
+            for u in units {
+                for row in u.rows.iter().filter(|row| row.controller == c) {
+                    for (i, (_, h)) in METRICS.iter().enumerate() {
+                        let Some(v) = row.reduction_pct.get(i).filter(|v| v.is_finite()) else {
+                            continue;
+                        };
+                        checks += 1;
+                        per_metric[i].push(v);
+                        if v < GOAL_MIN_PCT {
+                            below += 1;
+                        }
+                        if v < worst {
+                            worst = v;
+                            worst_at = format!("{} {} {}, {h}", u.family, u.unit, row.trajectory);
+                        }
+                    }
+                }
+            }
+            let (lowest, metric) = per_metric
+                .into_iter()
+                .zip(METRICS)
+                .filter_map(|(v, (_, h))| stat(v).map(|s| (s.median, h.to_string())))
+                .min_by(|a, b| a.0.total_cmp(&b.0))?;
+            Some(GoalCheck {
+                controller: c,
+                worst_pct: worst,
+                worst_at,
+                lowest_median_pct: lowest,
+                lowest_median_metric: metric,
+                below_60: below,
+                checks,
+                met: below == 0 && lowest >= GOAL_MEDIAN_PCT,
+            })
+        })
+        .collect()
+}
+
+/// The best calibrated controller by median truth position reduction; `feed_forward_only`
+/// leaves out those with vision feedback.
+fn best_mode(units: &[&UnitOutcome], r: &Recipe, feed_forward_only: bool) -> Option<String> {
+    calibrated(r)
+        .into_iter()
+        .filter(|c| !(feed_forward_only && c.ends_with("+fb")))
         .filter_map(|c| {
             let v = units
                 .iter()
@@ -1386,8 +1610,8 @@ fn timing(units: &[UnitOutcome]) -> Vec<TimingRow> {
             };
             let collect = sum(&|s| s == "collect");
             let train = sum(&|s| s.starts_with("train-"));
-            let tune = sum(&|s| s == "tune");
-            let evaluate = sum(&|s| s == "evaluate");
+            let tune = sum(&|s| s == "tune" || s == "feedback");
+            let evaluate = sum(&|s| s.starts_with("evaluate"));
             TimingRow {
                 family: u.family.clone(),
                 unit: u.unit,
@@ -1530,7 +1754,7 @@ fn markdown(rep: &Report) -> String {
          2. `bowden collect --samples {} --seed {} --excitation {}`\n\
          3. `bowden train --seq-len {} --epochs {}{}` for {} × forward, inverse{}{}\n\
          4. {}\n\
-         5. `bowden evaluate --repeats {} --trajectories {} --controllers {}{}` on the unit's plant\n",
+         5. `bowden evaluate --repeats {} --trajectories {} --controllers {}{}` on the unit's plant\n{}",
         r.samples,
         rep.seed,
         r.excitation,
@@ -1552,6 +1776,10 @@ fn markdown(rep: &Report) -> String {
             String::new()
         } else {
             format!("; judges (forward only, `tune --judge`): {}", r.judge_archs.join(", "))
+        } + &if r.inverse_archs.is_empty() {
+            String::new()
+        } else {
+            format!("; further inverse candidates: {}", r.inverse_archs.join(", "))
         },
         if r.tune {
             format!(
@@ -1568,6 +1796,12 @@ fn markdown(rep: &Report) -> String {
         r.trajectories.join(","),
         r.controllers.join(","),
         r.max_points.map(|n| format!(" --max-points {n}")).unwrap_or_default(),
+        r.feedback.as_ref().map_or_else(String::new, |f| format!(
+            "6. the same with vision feedback (controllers `+fb`): the unit's controller plus the `[feedback]` \
+             table of `{}`, `bowden evaluate --camera-fps {}` (frames during each held point)\n",
+            shown(&rep.project_dir, &f.config),
+            f.camera_fps
+        )),
     );
     let _ = writeln!(out, "## Families\n");
     let _ = writeln!(
@@ -1676,9 +1910,38 @@ fn markdown(rep: &Report) -> String {
     if let Some(b) = &rep.best_mode {
         let _ = writeln!(
             out,
-            "Best calibrated mode (median position reduction by truth over the held-out pairs): **{b}**; \
-             `transfer.svg` plots its distribution per family.\n"
+            "Best calibrated mode (median position reduction by truth over the held-out pairs): **{b}**{}; \
+             `transfer.svg` plots its distribution per family.\n",
+            match &rep.best_feed_forward {
+                Some(f) if f != b => format!("; without vision feedback: **{f}**"),
+                _ => String::new(),
+            }
         );
+    }
+    if !rep.goals.is_empty() {
+        let _ = writeln!(
+            out,
+            "## Goals (held-out)\n\nEvery reduction (position, orientation, joint MAE; vision and truth) ≥ \
+             {GOAL_MIN_PCT:.0} % on every held-out unit and trajectory, and the median of each ≥ \
+             {GOAL_MEDIAN_PCT:.0} %.\n\n\
+             | controller | worst reduction | where | cells < {GOAL_MIN_PCT:.0} % | lowest median | of | met |\n\
+             |---|---|---|---|---|---|---|"
+        );
+        for g in &rep.goals {
+            let _ = writeln!(
+                out,
+                "| {} | {:+.1} % | {} | {} of {} | {:+.1} % | {} | {} |",
+                g.controller,
+                g.worst_pct,
+                g.worst_at,
+                g.below_60,
+                g.checks,
+                g.lowest_median_pct,
+                g.lowest_median_metric,
+                if g.met { "yes" } else { "**no**" }
+            );
+        }
+        out.push('\n');
     }
     let failed: Vec<&UnitOutcome> = rep.units.iter().filter(|u| u.failure.is_some()).collect();
     if !failed.is_empty() {
@@ -1789,26 +2052,46 @@ fn plot(path: &Path, rep: &Report, units: &[&UnitOutcome], which: &str) -> Resul
     use plotters::style::text_anchor::{HPos, Pos, VPos};
     let e = |x: String| anyhow!("{}: {x}", path.display());
     let mode = rep.best_mode.clone().unwrap_or_else(|| "no results".into());
+    // Two series per family: the best mode by truth and by vision; or, when the best mode uses
+    // vision feedback (whose loop drives the vision-measured error), the best feed-forward mode
+    // and the best mode, both by truth.
+    let series: [(String, bool, &str); 2] = match &rep.best_feed_forward {
+        Some(ff) if *ff != mode => [
+            (ff.clone(), true, "feed-forward"),
+            (mode.clone(), true, "with vision feedback"),
+        ],
+        _ => [(mode.clone(), true, "by truth"), (mode.clone(), false, "by vision")],
+    };
     let fams: Vec<&Family> = rep
         .families
         .iter()
         .filter(|f| units.iter().any(|u| u.family == f.name && !u.rows.is_empty()))
         .collect();
-    let mut pts: Vec<(usize, usize, f64, bool)> = Vec::new(); // (family, k, value, truth)
+    // (family, k, value, series 0 or 1)
+    let mut pts: Vec<(usize, usize, f64, bool)> = Vec::new();
     for (fi, f) in fams.iter().enumerate() {
-        let mut k = 0;
-        for u in units.iter().filter(|u| u.family == f.name) {
-            for row in u.rows.iter().filter(|r| r.controller == mode) {
-                if let Some(v) = row.reduction_pct.position_truth {
-                    pts.push((fi, k, v, true));
+        for (si, (c, truth, _)) in series.iter().enumerate() {
+            let mut k = 0;
+            for u in units.iter().filter(|u| u.family == f.name) {
+                for row in u.rows.iter().filter(|r| r.controller == *c) {
+                    let v = if *truth {
+                        row.reduction_pct.position_truth
+                    } else {
+                        row.reduction_pct.position_vision
+                    };
+                    if let Some(v) = v {
+                        pts.push((fi, k, v, si == 0));
+                    }
+                    k += 1;
                 }
-                if let Some(v) = row.reduction_pct.position_vision {
-                    pts.push((fi, k, v, false));
-                }
-                k += 1;
             }
         }
     }
+    let title = if series[0].0 == series[1].0 {
+        mode.clone()
+    } else {
+        format!("{} and {}", series[0].0, series[1].0)
+    };
     let per_family = |fi: usize| pts.iter().filter(|p| p.0 == fi && p.3).count().max(1);
     let lo = pts.iter().map(|p| p.2).fold(0.0f64, f64::min);
     let hi = pts.iter().map(|p| p.2).fold(100.0f64, f64::max);
@@ -1830,7 +2113,7 @@ fn plot(path: &Path, rep: &Report, units: &[&UnitOutcome], which: &str) -> Resul
         .collect();
     let mut chart = ChartBuilder::on(&left)
         .caption(
-            format!("{mode}: tip position error reduction vs uncalibrated, {which} units"),
+            format!("{title}: tip position error reduction vs uncalibrated, {which} units"),
             ("sans-serif", 15),
         )
         .margin(12)
@@ -1898,11 +2181,25 @@ fn plot(path: &Path, rep: &Report, units: &[&UnitOutcome], which: &str) -> Resul
     }
     // Legend panel.
     let text = ("sans-serif", 13).into_font();
-    let items: [(&str, u8); 4] = [
-        ("by truth (unit × trajectory)", 0),
-        ("by vision", 1),
-        ("median", 2),
-        ("0 = uncalibrated", 3),
+    let items: [(String, u8); 4] = [
+        (
+            if series[0].0 == series[1].0 {
+                "by truth (unit × trajectory)".to_string()
+            } else {
+                format!("{} ({}, truth)", series[0].0, series[0].2)
+            },
+            0,
+        ),
+        (
+            if series[0].0 == series[1].0 {
+                "by vision".to_string()
+            } else {
+                format!("{} (truth)", series[1].0)
+            },
+            1,
+        ),
+        ("median".into(), 2),
+        ("0 = uncalibrated".into(), 3),
     ];
     for (i, (label, kind)) in items.iter().enumerate() {
         let y = 60 + 24 * i as i32;
@@ -2005,15 +2302,13 @@ fn load_outcomes(plans: &[UnitPlan], fingerprints: &[String], recipe: &Recipe) -
     let (mut units, mut missing, mut bad) = (Vec::new(), Vec::new(), Vec::new());
     for (k, (p, fp)) in plans.iter().zip(fingerprints).enumerate() {
         match read_outcome(p, fp) {
-            OutcomeState::Done(mut u) if u.failure.is_none() => {
-                match rows_from_summary(&p.dir.join("eval/summary.json"), recipe) {
-                    Ok(rows) => {
-                        u.rows = rows;
-                        units.push(*u);
-                    }
-                    Err(e) => bad.push(format!("{} (unit {k}): {e:#}", outcome_path(p).display())),
+            OutcomeState::Done(mut u) if u.failure.is_none() => match unit_rows(&p.dir, recipe) {
+                Ok(rows) => {
+                    u.rows = rows;
+                    units.push(*u);
                 }
-            }
+                Err(e) => bad.push(format!("{} (unit {k}): {e:#}", outcome_path(p).display())),
+            },
             OutcomeState::Done(u) => units.push(*u),
             OutcomeState::Missing => missing.push(k.to_string()),
             OutcomeState::Bad(why) => bad.push(format!("{} (unit {k}): {why}", outcome_path(p).display())),
@@ -2139,6 +2434,14 @@ fn transfer(a: TransferArgs) -> Result<()> {
             recipe.base_controller.display()
         );
     }
+    let feedback_config = match &recipe.feedback {
+        None => None,
+        Some(f) => {
+            let p = resolve(&f.config, &cfg_dir, root.as_deref());
+            feedback_table(&p).with_context(|| format!("{}: recipe.feedback.config", a.config.display()))?;
+            Some(p)
+        }
+    };
     for t in &recipe.trajectories {
         let f = project.join("configs/trajectories").join(format!("{t}.toml"));
         if !f.is_file() {
@@ -2293,6 +2596,7 @@ fn transfer(a: TransferArgs) -> Result<()> {
             seed: cfg.seed,
             threads,
             base_controller,
+            feedback_config,
             config_file: config_file.clone(),
             mp: MultiProgress::new(),
         };
@@ -2421,7 +2725,9 @@ fn transfer(a: TransferArgs) -> Result<()> {
         seed: cfg.seed,
         recipe: recipe.clone(),
         families,
-        best_mode: best_mode(&held, &recipe),
+        best_mode: best_mode(&held, &recipe, false),
+        best_feed_forward: best_mode(&held, &recipe, true),
+        goals: goals(&held, &recipe),
         summary,
         never_worse: never_worse(&held, &recipe),
         timing: timing(&units),
@@ -2434,7 +2740,7 @@ fn transfer(a: TransferArgs) -> Result<()> {
     } else {
         let t: Vec<&UnitOutcome> = units.iter().filter(|u| u.role == Role::Tuning).collect();
         if rep.best_mode.is_none() {
-            rep.best_mode = best_mode(&t, &recipe);
+            rep.best_mode = best_mode(&t, &recipe, false);
         }
         (t, "tuning (no held-out results)")
     };
@@ -2522,6 +2828,121 @@ heldout_units = [1, 2]
         assert!(e.contains("recipe.per_arch.tcn"), "{e}");
         let e = cfg(&per_arch("tcn]\nepoch = 5")).unwrap_err();
         assert!(e.contains("epoch"), "{e}");
+    }
+
+    fn row(controller: &str, trajectory: &str, pct: f64) -> Row {
+        let six = Six {
+            position_vision: Some(pct),
+            position_truth: Some(pct),
+            orientation_vision: Some(pct),
+            orientation_truth: Some(pct),
+            joint_vision: Some(pct),
+            joint_truth: Some(pct),
+        };
+        Row {
+            trajectory: trajectory.into(),
+            controller: controller.into(),
+            error: six,
+            uncalibrated: six,
+            reduction_pct: six,
+        }
+    }
+
+    fn unit(family: &str, n: u64, rows: Vec<Row>) -> UnitOutcome {
+        UnitOutcome {
+            family: family.into(),
+            model: family.into(),
+            unit: n,
+            role: Role::HeldOut,
+            dir: PathBuf::new(),
+            status: "ok".into(),
+            failure: None,
+            steps: Vec::new(),
+            wall_seconds: 0.0,
+            rows,
+        }
+    }
+
+    #[test]
+    fn feedback_controllers_are_reported_and_judged_by_the_goals() {
+        let with_fb = OK.replace(
+            "[[family]]",
+            "[recipe.feedback]\nconfig = \"configs/controller-feedback.toml\"\ncamera_fps = 10.0\n[[family]]",
+        );
+        let r = cfg(&with_fb).unwrap().recipe;
+        assert_eq!(calibrated(&r), ["paper", "paper+fb"]);
+        let e = cfg(&with_fb.replace("camera_fps = 10.0", "camera_fps = 0.0")).unwrap_err();
+        assert!(e.contains("recipe.feedback.camera_fps"), "{e}");
+        let e = cfg(&with_fb.replace("camera_fps = 10.0", "camera_fps = 10.0\ngain = 1")).unwrap_err();
+        assert!(e.contains("gain"), "{e}");
+        // paper: one cell below 60 %; paper+fb: all ≥ 60 %, median 80 %.
+        let a = unit(
+            "a",
+            1,
+            vec![
+                row("paper", "circle", 70.0),
+                row("paper+fb", "circle", 80.0),
+                row("paper", "zigzag", 59.0),
+                row("paper+fb", "zigzag", 61.0),
+            ],
+        );
+        let b = unit(
+            "a",
+            2,
+            vec![row("paper", "circle", 90.0), row("paper+fb", "circle", 90.0)],
+        );
+        let g = goals(&[&a, &b], &r);
+        assert_eq!((g[0].controller.as_str(), g[0].met), ("paper", false));
+        assert_eq!((g[0].below_60, g[0].checks), (6, 18));
+        assert_eq!(g[0].worst_pct, 59.0);
+        assert!(g[0].worst_at.starts_with("a 1 zigzag"), "{}", g[0].worst_at);
+        assert_eq!((g[1].controller.as_str(), g[1].met), ("paper+fb", true));
+        assert_eq!(g[1].lowest_median_pct, 80.0);
+        // A median below 75 % fails even with every cell ≥ 60 %.
+        let c = unit("a", 3, vec![row("paper+fb", "circle", 61.0)]);
+        let g = goals(&[&a, &c], &r);
+        assert!(!g[1].met && g[1].below_60 == 0, "{:?}", g[1]);
+        assert_eq!(best_mode(&[&a, &b], &r, false).as_deref(), Some("paper+fb"));
+        assert_eq!(best_mode(&[&a, &b], &r, true).as_deref(), Some("paper"));
+    }
+
+    #[test]
+    fn controller_with_feedback_adds_the_table() {
+        let dir = tempfile::tempdir().unwrap();
+        let (c, f, o) = (
+            dir.path().join("c.toml"),
+            dir.path().join("f.toml"),
+            dir.path().join("o.toml"),
+        );
+        std::fs::write(&c, "mode = \"newton\"\nmodel_fwd = \"models/f.onnx\"\n").unwrap();
+        std::fs::write(&f, "mode = \"paper\"\n[feedback]\nenabled = true\ngain = 0.8\n").unwrap();
+        controller_with_feedback(&c, &f, &o).unwrap();
+        let t: toml::Table = toml::from_str(&std::fs::read_to_string(&o).unwrap()).unwrap();
+        assert_eq!(t["mode"].as_str(), Some("newton"), "the unit's settings stay");
+        assert_eq!(t["model_fwd"].as_str(), Some("models/f.onnx"));
+        assert_eq!(t["feedback"]["gain"].as_float(), Some(0.8));
+        std::fs::write(&f, "[feedback]\nenabled = false\n").unwrap();
+        let e = format!("{:#}", controller_with_feedback(&c, &f, &o).unwrap_err());
+        assert!(e.contains("enabled = true"), "{e}");
+        std::fs::write(&f, "mode = \"paper\"\n").unwrap();
+        let e = format!("{:#}", controller_with_feedback(&c, &f, &o).unwrap_err());
+        assert!(e.contains("no [feedback] table"), "{e}");
+    }
+
+    #[test]
+    fn inverse_architectures_are_validated() {
+        let with = |j: &str| OK.replace("archs = [\"tcn\"]", &format!("archs = [\"tcn\"]\ninverse_archs = {j}"));
+        let c = cfg(&with("[\"lstm\"]")).unwrap();
+        assert_eq!(c.recipe.inverse_archs, ["lstm"]);
+        let e = cfg(&with("[\"tcn\"]")).unwrap_err();
+        assert!(
+            e.contains("recipe.inverse_archs") && e.contains("both directions"),
+            "{e}"
+        );
+        let e = cfg(&with("[\"gru\"]")).unwrap_err();
+        assert!(e.contains("recipe.inverse_archs[0]"), "{e}");
+        let text = with("[\"lstm\"]").replace("[[family]]", "[recipe.per_arch.lstm]\nepochs = 30\n[[family]]");
+        assert_eq!(cfg(&text).unwrap().recipe.training("lstm"), (30, None));
     }
 
     #[test]

@@ -58,3 +58,31 @@ base_controller = "{base}""#,
         base = repo().join("configs/controller.toml").display(),
     )
 }
+
+/// The iceoryx2 files in /dev/shm whose names start with one of `prefixes` (the pipelines of
+/// `bowden` subcommands: `bev<pid>_…` of evaluate, `bcol<pid>_…` of collect, …).
+pub fn shm_files(prefixes: &[&str]) -> std::collections::BTreeSet<String> {
+    std::fs::read_dir("/dev/shm")
+        .map(|d| {
+            d.flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| prefixes.iter().any(|p| n.starts_with(p)))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// Files of `prefixes` that appeared since `before` and whose owner (the pid after the prefix)
+/// has exited: what a finished run left behind. Files of a process still running — another
+/// run on the same machine — are not counted.
+pub fn shm_leaked_since(before: &std::collections::BTreeSet<String>, prefixes: &[&str]) -> Vec<String> {
+    shm_files(prefixes)
+        .difference(before)
+        .filter(|n| {
+            let rest = prefixes.iter().find_map(|p| n.strip_prefix(p)).unwrap_or(n.as_str());
+            let pid: String = rest.chars().take_while(char::is_ascii_digit).collect();
+            pid.is_empty() || !std::path::Path::new("/proc").join(&pid).exists()
+        })
+        .cloned()
+        .collect()
+}
