@@ -14,10 +14,10 @@
 //! one: after changing the code, use another `--out` (or remove the stamps).
 //!
 //! On a cluster scheduler the units split like a sweep's runs: `--plan` numbers the selected
-//! units and fingerprints each (version, seed, recipe, family, unit plant, role), `--shard I/N`
-//! runs the units whose index ≡ I (mod N), every unit leaves `UNIT/outcome.json` (written
-//! atomically, by local runs too), and `--merge` reads them back, refusing missing ones and ones
-//! of another fingerprint by name, and writes the report. The merged report's results (summary,
+//! units and fingerprints each (version, seed, recipe and the files it names, family, unit
+//! plant, role), `--shard I/N` runs the units whose index ≡ I (mod N), every unit leaves
+//! `UNIT/outcome.json` (written atomically, by local runs too), and `--merge` reads them back,
+//! refusing missing ones and ones of another fingerprint by name, and writes the report. The merged report's results (summary,
 //! never-worse checks, rows) equal a local run's; its timings, load and parallelism are not
 //! one process's and are marked as merged.
 
@@ -74,8 +74,8 @@ pub struct TransferArgs {
     #[arg(long)]
     pub quick: bool,
     /// Print the selected units instead of running them: index, unit, role, directory,
-    /// fingerprint (config, recipe, seed, unit plant, version) and status in --out; --json for
-    /// JSON.
+    /// fingerprint (recipe and the controller files it names, seed, unit plant, version) and
+    /// status in --out; --json for JSON.
     #[arg(long, conflicts_with_all = ["shard", "merge"])]
     pub plan: bool,
     /// Run only shard I of N of the selected units: those whose index (see --plan) ≡ I (mod N),
@@ -2240,14 +2240,16 @@ fn outcome_path(p: &UnitPlan) -> PathBuf {
 }
 
 /// FNV-1a 64 (hex) of what a unit's outcome depends on: the bowden version, the seed, the
-/// recipe, the family, the unit's plant text and its role. Like the stamps, not the binary
-/// itself: after changing the code, use another `--out`.
-fn unit_fingerprint(recipe: &Recipe, seed: u64, fam: &Family, p: &UnitPlan) -> Result<String> {
+/// recipe and the files it names (`recipe_files`: the base controller's and the feedback
+/// config's text), the family, the unit's plant text and its role. Like the stamps, not the
+/// binary itself: after changing the code, use another `--out`.
+fn unit_fingerprint(recipe: &Recipe, recipe_files: &str, seed: u64, fam: &Family, p: &UnitPlan) -> Result<String> {
     #[derive(Serialize)]
     struct Identity<'a> {
         version: &'a str,
         seed: u64,
         recipe: &'a Recipe,
+        recipe_files: &'a str,
         family: &'a str,
         plant: &'a str,
         unit: u64,
@@ -2259,6 +2261,7 @@ fn unit_fingerprint(recipe: &Recipe, seed: u64, fam: &Family, p: &UnitPlan) -> R
         version: env!("CARGO_PKG_VERSION"),
         seed,
         recipe,
+        recipe_files,
         family: &fam.name,
         plant: &plant,
         unit: p.unit,
@@ -2543,9 +2546,14 @@ fn transfer(a: TransferArgs) -> Result<()> {
         }
     }
     // What each unit's outcome depends on: checked by --merge, shown by --plan.
+    let recipe_files = format!(
+        "{}\u{1e}{}",
+        read_text(&base_controller),
+        feedback_config.as_deref().map(read_text).unwrap_or_default()
+    );
     let fingerprints: Vec<String> = plans
         .iter()
-        .map(|p| unit_fingerprint(&recipe, cfg.seed, &families[p.family], p))
+        .map(|p| unit_fingerprint(&recipe, &recipe_files, cfg.seed, &families[p.family], p))
         .collect::<Result<_>>()?;
     if a.plan {
         return print_unit_plan(&a, &plans, &families, &fingerprints);
@@ -2927,6 +2935,35 @@ heldout_units = [1, 2]
         std::fs::write(&f, "mode = \"paper\"\n").unwrap();
         let e = format!("{:#}", controller_with_feedback(&c, &f, &o).unwrap_err());
         assert!(e.contains("no [feedback] table"), "{e}");
+    }
+
+    #[test]
+    fn the_fingerprint_covers_the_files_the_recipe_names() {
+        let r = cfg(OK).unwrap().recipe;
+        let fam = Family {
+            name: "a".into(),
+            model: "plant".into(),
+            plant: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs/plant.toml"),
+            tuning_units: Vec::new(),
+            heldout_units: vec![1],
+        };
+        let plan = UnitPlan {
+            family: 0,
+            unit: 1,
+            role: Role::HeldOut,
+            dir: PathBuf::new(),
+        };
+        let fp = |files: &str| unit_fingerprint(&r, files, 1, &fam, &plan).unwrap();
+        assert_eq!(
+            fp("base\u{1e}[feedback]\ngain = 0.8"),
+            fp("base\u{1e}[feedback]\ngain = 0.8")
+        );
+        // Another feedback gain or base controller: shards made with it are not merged.
+        assert_ne!(
+            fp("base\u{1e}[feedback]\ngain = 0.8"),
+            fp("base\u{1e}[feedback]\ngain = 0.5")
+        );
+        assert_ne!(fp("base\u{1e}"), fp("other base\u{1e}"));
     }
 
     #[test]
