@@ -1044,23 +1044,34 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
         // 5. Evaluate on the unseen trajectories.
         let eval = dir.join("eval");
         let summary = eval.join("summary.json");
-        let mut args: Vec<String> = vec![
-            "evaluate".into(),
-            "--plant".into(),
-            s(&plant),
-            "--controller-config".into(),
-            s(&controller),
-            "--repeats".into(),
-            r.repeats.to_string(),
-            "--trajectories".into(),
-            r.trajectories.join(","),
-            "--controllers".into(),
-            r.controllers.join(","),
-        ];
-        if let Some(n) = r.max_points {
-            args.extend(["--max-points".into(), n.to_string()]);
-        }
-        args.extend(["--report".into(), s(&eval), "--json-out".into(), s(&summary)]);
+        // `bowden evaluate` of `controller` on the unit's plant, the camera at `camera_fps`
+        // (default: one frame per held point).
+        let evaluate = |controller: &Path, camera_fps: Option<f64>, report: &Path, summary: &Path| {
+            let mut args: Vec<String> = vec![
+                "evaluate".into(),
+                "--plant".into(),
+                s(&plant),
+                "--controller-config".into(),
+                s(controller),
+            ];
+            if let Some(f) = camera_fps {
+                args.extend(["--camera-fps".into(), f.to_string()]);
+            }
+            args.extend([
+                "--repeats".into(),
+                r.repeats.to_string(),
+                "--trajectories".into(),
+                r.trajectories.join(","),
+                "--controllers".into(),
+                r.controllers.join(","),
+            ]);
+            if let Some(n) = r.max_points {
+                args.extend(["--max-points".into(), n.to_string()]);
+            }
+            args.extend(["--report".into(), s(report), "--json-out".into(), s(summary)]);
+            args
+        };
+        let args = evaluate(&controller, None, &eval, &summary);
         let eval_inputs = r
             .trajectories
             .iter()
@@ -1095,28 +1106,9 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
             )?;
             let eval_fb = dir.join("eval-feedback");
             let summary_fb = eval_fb.join("summary.json");
-            let mut args: Vec<String> = vec![
-                "evaluate".into(),
-                "--plant".into(),
-                s(&plant),
-                "--controller-config".into(),
-                s(&fb_controller),
-                "--camera-fps".into(),
-                fb.camera_fps.to_string(),
-                "--repeats".into(),
-                r.repeats.to_string(),
-                "--trajectories".into(),
-                r.trajectories.join(","),
-                "--controllers".into(),
-                r.controllers.join(","),
-            ];
-            if let Some(n) = r.max_points {
-                args.extend(["--max-points".into(), n.to_string()]);
-            }
-            args.extend(["--report".into(), s(&eval_fb), "--json-out".into(), s(&summary_fb)]);
             runner.step(
                 "evaluate-feedback",
-                Action::Exe(args),
+                Action::Exe(evaluate(&fb_controller, Some(fb.camera_fps), &eval_fb, &summary_fb)),
                 &eval_inputs,
                 &["feedback".into()],
                 &[summary_fb.clone(), eval_fb.clone()],
