@@ -9,9 +9,30 @@
 //! u_k ← clamp((1 − leak)·u_k + gain·e_k, ±integrator_max_deg)
 //! ```
 //!
-//! and the compensator runs on `q_desired + u` (`apply = "target"`: the learned models turn
-//! the corrected target into a command, dead band included) or adds `u` to its command
-//! (`apply = "command"`).
+//! and the compensator runs on `q_desired + u + b` (`apply = "target"`: the learned models
+//! turn the corrected target into a command, dead band included) or adds `u + b` to its
+//! command (`apply = "command"`).
+//!
+//! - **Two time scales.** `u` is local: a jump forgets it (`keep_on_jump`), because what the
+//!   feed-forward leaves at one held point says little about the next one. `b` is the slow
+//!   part, kept across jumps: an error common to every configuration — a cable that crept or
+//!   slipped, an offset the models never saw — is learned once instead of at every held
+//!   point. At each jump, the local correction the point just left needed (`u`, which the
+//!   held frames drove to what the feed-forward and `b` left there) is averaged, per joint:
+//!
+//!   ```text
+//!   m_k ← m_k + (u_k − m_k) / bias_window              the mean need over the last points
+//!   x_k = sign(m_k)·max(|m_k| − bias_deadband_deg, 0)  the part beyond the dead band
+//!   b_k ← clamp(b_k + bias_gain·x_k, ±bias_max_deg);  m_k ← m_k − Δb_k;  u_k ← u_k − Δb_k
+//!   ```
+//!
+//!   The dead band keeps the configuration-dependent residual of a calibrated feed-forward
+//!   (its mean over points falls inside it) out of `b`; `m` and `u` give up what `b` took,
+//!   because the next points need that much less. Per point, with a constant need d and u
+//!   converged, (m, d − b) evolves with determinant (1 − β)(1 − α) and Jury margin β·α > 0
+//!   (α = 1/bias_window, β = bias_gain): stable for every α, β in (0, 1]. `b` moves only at
+//!   jumps, so within a hold the loop is `u`'s alone. Off (`bias_gain = 0`) by default, and
+//!   then the output is bit for bit that of `u` alone.
 //!
 //! - **Delay.** The estimate's header carries the tick of the target in force when the frame
 //!   was captured (the camera stamps the tick of the plant state it rendered, which carries
@@ -93,6 +114,18 @@ pub struct FeedbackConfig {
     /// Fraction of the correction kept across a jump, [0, 1]: 0 forgets it (a correction is
     /// local to the configuration it was measured at), 1 keeps it.
     pub keep_on_jump: f64,
+    /// Share of the averaged local correction beyond the dead band that the slow correction
+    /// `b` (kept across jumps) takes at each jump, [0, 1] (0 = none).
+    pub bias_gain: f64,
+    /// Per-joint bound of the slow correction, deg (anti-windup).
+    pub bias_max_deg: f64,
+    /// The slow correction follows the mean of the local corrections the last this many held
+    /// points needed (an exponential average, weight 1/N per point; 1 = the last point alone).
+    pub bias_window: u32,
+    /// Only the part of that mean beyond this is learned, deg: the configuration-dependent
+    /// residual of a calibrated feed-forward averages to less, a slipped or crept cable does
+    /// not.
+    pub bias_deadband_deg: f64,
     /// Settled frames averaged into one update (1 = every settled frame updates): the
     /// estimate's noise enters the correction divided by √N.
     pub frames_per_update: u32,
@@ -125,6 +158,10 @@ impl Default for FeedbackConfig {
             settle_ms: 30.0,
             jump_deg: 1.0,
             keep_on_jump: 0.0,
+            bias_gain: 0.0,
+            bias_max_deg: 5.0,
+            bias_window: 1,
+            bias_deadband_deg: 0.0,
             frames_per_update: 1,
             reference_tau_ms: 80.0,
             max_age_ms: 200.0,
@@ -138,7 +175,8 @@ impl Default for FeedbackConfig {
 
 /// `gain + leak` must stay below this: the delay-free loop `u ← (1 − leak − gain)·u + gain·r`
 /// (r: what the feed-forward leaves, bounded) is stable only for |1 − leak − gain| < 1, and
-/// no timing makes a larger gain stable.
+/// no timing makes a larger gain stable. (The slow correction moves only at jumps, between
+/// holds, and has its own bound: `bias_gain` in [0, 1].)
 pub const LOOP_GAIN_BOUND: f64 = 2.0;
 
 impl FeedbackConfig {
@@ -151,12 +189,41 @@ impl FeedbackConfig {
         if !(self.gain.is_finite() && self.gain > 0.0) {
             return Err(("feedback.gain", self.gain.to_string(), "must be a positive number"));
         }
+        if !in_range(self.bias_gain, 0.0, 1.0) {
+            return Err((
+                "feedback.bias_gain",
+                self.bias_gain.to_string(),
+                "must be in [0, 1] (0 = no slow correction): the share of the averaged need b takes \
+                 at each jump",
+            ));
+        }
         if self.gain + self.leak >= LOOP_GAIN_BOUND {
             return Err((
                 "feedback.gain",
                 self.gain.to_string(),
                 "gain + leak must be < 2: above it the integrator diverges even on an ideal robot \
                  without delay (docs/architecture.md, \"Vision feedback\")",
+            ));
+        }
+        if !(1..=10_000).contains(&self.bias_window) {
+            return Err((
+                "feedback.bias_window",
+                self.bias_window.to_string(),
+                "must be in 1..=10000",
+            ));
+        }
+        if !in_range(self.bias_deadband_deg, 0.0, 45.0) {
+            return Err((
+                "feedback.bias_deadband_deg",
+                self.bias_deadband_deg.to_string(),
+                "must be in [0, 45]",
+            ));
+        }
+        if !(self.bias_max_deg.is_finite() && self.bias_max_deg > 0.0 && self.bias_max_deg <= 45.0) {
+            return Err((
+                "feedback.bias_max_deg",
+                self.bias_max_deg.to_string(),
+                "must be in (0, 45]",
             ));
         }
         if !(self.integrator_max_deg.is_finite() && self.integrator_max_deg > 0.0 && self.integrator_max_deg <= 45.0) {
@@ -271,6 +338,8 @@ pub struct FeedbackCounts {
     pub windup_holds: u64,
     /// Joint updates that hit `integrator_max_deg`.
     pub clamped: u64,
+    /// Joint updates of the slow correction that hit `bias_max_deg`.
+    pub bias_clamped: u64,
     /// Marker-loss fallbacks to pure feed-forward.
     pub loss_episodes: u64,
 }
@@ -304,7 +373,15 @@ pub struct Feedback {
     reference: [f64; MAX_JOINTS],
     t_reference_ns: Option<u64>,
     last_desired: [f64; MAX_JOINTS],
+    /// The local correction (forgotten on a jump) and the slow one (kept), and their sum,
+    /// which is what is applied.
     u: [f64; MAX_JOINTS],
+    b: [f64; MAX_JOINTS],
+    total: [f64; MAX_JOINTS],
+    /// An update happened since the last jump: `u` holds what that point needed.
+    updated_since_jump: bool,
+    /// Average local correction of the last points that `b` has not taken yet.
+    bias_mean: [f64; MAX_JOINTS],
     zero: [f64; MAX_JOINTS],
     /// Sum and count per joint of the settled errors accepted since the last update, and the
     /// number of frames in it.
@@ -322,6 +399,7 @@ pub struct Feedback {
     upper_mask: u32,
     lower_mask: u32,
     u_abs_max: f64,
+    b_abs_max: f64,
     counts: FeedbackCounts,
 }
 
@@ -353,10 +431,15 @@ impl Feedback {
             if jump {
                 self.t_change_ns = Some(now_ns);
                 self.clear_average();
+                if self.cfg.bias_gain > 0.0 && self.updated_since_jump {
+                    self.learn_slow_correction();
+                }
                 let keep = self.cfg.keep_on_jump;
                 for v in self.u[..j].iter_mut() {
                     *v *= keep;
                 }
+                self.sum_correction();
+                self.updated_since_jump = false;
             }
         }
         self.last_desired[..j].copy_from_slice(&q_desired_deg[..j]);
@@ -494,9 +577,13 @@ impl Feedback {
                 }
                 changed |= c != self.u[k];
                 self.u[k] = c;
-                self.u_abs_max = self.u_abs_max.max(c.abs());
+            }
+            self.sum_correction();
+            for k in 0..j {
+                self.u_abs_max = self.u_abs_max.max(self.total[k].abs());
             }
             self.counts.updates += 1;
+            self.updated_since_jump = true;
             if changed {
                 self.t_change_ns = Some(now_ns);
             }
@@ -505,16 +592,51 @@ impl Feedback {
         if !self.lost && now_ns.saturating_sub(since) > ms_to_ns(self.cfg.loss_timeout_ms) {
             self.lost = true;
             self.counts.loss_episodes += 1;
-            if self.u[..j].iter().any(|&v| v != 0.0) {
+            if self.total[..j].iter().any(|&v| v != 0.0) {
                 self.t_change_ns = Some(now_ns);
             }
             self.u = [0.0; MAX_JOINTS];
+            self.b = [0.0; MAX_JOINTS];
+            self.bias_mean = [0.0; MAX_JOINTS];
+            self.sum_correction();
             self.clear_average();
         }
         if self.lost {
             &self.zero[..j]
         } else {
-            &self.u[..j]
+            &self.total[..j]
+        }
+    }
+
+    /// At a jump: the local correction the point just left needed (`u`, which the held
+    /// frames drove to what the feed-forward and `b` left there) enters the average `m`; `b`
+    /// takes `bias_gain` of its part beyond the dead band, and `m` and `u` give up what `b`
+    /// took.
+    fn learn_slow_correction(&mut self) {
+        let alpha = 1.0 / f64::from(self.cfg.bias_window);
+        let (gain, band, max) = (self.cfg.bias_gain, self.cfg.bias_deadband_deg, self.cfg.bias_max_deg);
+        for k in 0..self.j {
+            let m = &mut self.bias_mean[k];
+            *m += alpha * (self.u[k] - *m);
+            let excess = m.signum() * (m.abs() - band).max(0.0);
+            let w = self.b[k] + gain * excess;
+            let b = w.clamp(-max, max);
+            if b != w {
+                self.counts.bias_clamped += 1;
+            }
+            let taken = b - self.b[k];
+            *m -= taken;
+            self.u[k] = (self.u[k] - taken).clamp(-self.cfg.integrator_max_deg, self.cfg.integrator_max_deg);
+            self.b[k] = b;
+            self.b_abs_max = self.b_abs_max.max(b.abs());
+        }
+    }
+
+    /// `total = u + b`, what is applied. Without a slow correction `b` stays 0 and the sum
+    /// is `u` bit for bit.
+    fn sum_correction(&mut self) {
+        for k in 0..self.j {
+            self.total[k] = self.u[k] + self.b[k];
         }
     }
 
@@ -536,8 +658,13 @@ impl Feedback {
         if self.lost {
             &self.zero[..self.j]
         } else {
-            &self.u[..self.j]
+            &self.total[..self.j]
         }
+    }
+
+    /// The slow correction `b` now held (zeros without `bias_gain`), deg.
+    pub fn slow_correction(&self) -> &[f64] {
+        &self.b[..self.j]
     }
 
     /// Markers lost for longer than the timeout: the output is pure feed-forward.
@@ -545,7 +672,7 @@ impl Feedback {
         self.lost
     }
 
-    /// Largest |u| reached, deg.
+    /// Largest |u + b| reached, deg.
     pub fn u_abs_max(&self) -> f64 {
         self.u_abs_max
     }
@@ -571,6 +698,10 @@ impl Feedback {
             t_reference_ns: None,
             last_desired: [0.0; MAX_JOINTS],
             u: [0.0; MAX_JOINTS],
+            b: [0.0; MAX_JOINTS],
+            total: [0.0; MAX_JOINTS],
+            updated_since_jump: false,
+            bias_mean: [0.0; MAX_JOINTS],
             zero: [0.0; MAX_JOINTS],
             acc_sum: [0.0; MAX_JOINTS],
             acc_n: [0; MAX_JOINTS],
@@ -583,6 +714,7 @@ impl Feedback {
             upper_mask: 0,
             lower_mask: 0,
             u_abs_max: 0.0,
+            b_abs_max: 0.0,
             counts: FeedbackCounts::default(),
         }
     }
@@ -593,7 +725,8 @@ impl Feedback {
         format!(
             "feedback: apply {}, gain {}, {} estimates, {} updates, {} settling, rejected {} (invalid {}, partial {}, \
              wrong size {}, non-finite {}, outliers {}), stale {}, unknown tick {}, anti-windup holds {}, at clamp {}, \
-             marker-loss fallbacks {}, max |u| {:.3} deg, now {}",
+             marker-loss fallbacks {}, max |u + b| {:.3} deg, slow correction: gain {}, max |b| {:.3} deg, \
+             at clamp {}, now {}",
             self.cfg.apply.name(),
             self.cfg.gain,
             c.estimates,
@@ -611,6 +744,9 @@ impl Feedback {
             c.clamped,
             c.loss_episodes,
             self.u_abs_max,
+            self.cfg.bias_gain,
+            self.b_abs_max,
+            c.bias_clamped,
             if self.lost {
                 "feed-forward only (markers lost)"
             } else {
@@ -672,6 +808,15 @@ mod tests {
                 c.leak = 0.2
             }),
             Some("feedback.gain")
+        );
+        assert_eq!(field(&|c| c.bias_gain = -0.1), Some("feedback.bias_gain"));
+        assert_eq!(field(&|c| c.bias_gain = 1.1), Some("feedback.bias_gain"));
+        assert_eq!(field(&|c| c.bias_gain = f64::NAN), Some("feedback.bias_gain"));
+        assert_eq!(field(&|c| c.bias_max_deg = 0.0), Some("feedback.bias_max_deg"));
+        assert_eq!(field(&|c| c.bias_window = 0), Some("feedback.bias_window"));
+        assert_eq!(
+            field(&|c| c.bias_deadband_deg = -1.0),
+            Some("feedback.bias_deadband_deg")
         );
         assert_eq!(field(&|c| c.gain = f64::NAN), Some("feedback.gain"));
         assert_eq!(field(&|c| c.gain = 0.0), Some("feedback.gain"));

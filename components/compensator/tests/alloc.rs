@@ -208,6 +208,10 @@ fn feedback_path_does_not_allocate() {
             enabled: true,
             apply,
             use_partial: mode == Mode::Paper,
+            // The slow correction's path too (its average and dead band).
+            bias_gain: 0.3,
+            bias_window: 4,
+            bias_deadband_deg: 0.05,
             ..FeedbackConfig::default()
         };
         let mut comp = Compensator::from_config(&c, &robot).unwrap();
