@@ -96,6 +96,13 @@ pub struct EvaluateArgs {
     /// frames to act on during the hold; the point is still measured on its last tick.
     #[arg(long, value_name = "FPS")]
     pub camera_fps: Option<f64>,
+    /// Run the pipeline at this tick instead of its own (a divisor of it, ms), keeping the
+    /// hold (`--settle-ticks` × the pipeline's tick) and the per-tick rate limits (the
+    /// compensator's and the actuator's deg/s scaled by the ratio), so the feed-forward runs as
+    /// it does at the pipeline's tick while a faster camera fits in the hold: e.g. `--tick-ms
+    /// 10 --camera-fps 50` holds each point 50 ticks with a frame every 2.
+    #[arg(long, value_name = "MS")]
+    pub tick_ms: Option<f64>,
 }
 
 /// The arguments with their files found (`crate::home`); the other fields through `Deref`.
@@ -207,6 +214,138 @@ struct Prepared {
     repeats: u32,
     report: PathBuf,
     tick_ns: u64,
+    /// Ticks each point is held (`--settle-ticks` scaled to `--tick-ms`).
+    settle_ticks: u32,
+}
+
+/// `--tick-ms`: the pipeline's tick `base_tick_ns` divided into `tick_ms`; returns the tick and
+/// the integer ratio.
+fn shorter_tick(tick_ms: f64, base_tick_ns: u64) -> Result<(u64, u64)> {
+    let tick_ns = (tick_ms * 1e6).round();
+    if !(tick_ms.is_finite() && tick_ns >= 1e5 && tick_ns <= base_tick_ns as f64) {
+        bail!(
+            "--tick-ms {tick_ms}: must be between 0.1 ms and the pipeline's tick ({} ms)",
+            base_tick_ns as f64 / 1e6
+        );
+    }
+    let tick_ns = tick_ns as u64;
+    if !base_tick_ns.is_multiple_of(tick_ns) {
+        bail!(
+            "--tick-ms {tick_ms}: must divide the pipeline's tick of {} ms (the hold and the per-tick rate \
+             limits are kept by scaling with the ratio)",
+            base_tick_ns as f64 / 1e6
+        );
+    }
+    Ok((tick_ns, base_tick_ns / tick_ns))
+}
+
+/// A copy of controller config `src` in `dir` for a tick `scale` times shorter: its rate limit
+/// (deg/s) times `scale`, so the limit per tick is unchanged, and its model paths absolute.
+fn controller_for_tick(src: &std::path::Path, dir: &std::path::Path, scale: u64) -> Result<PathBuf> {
+    let text = std::fs::read_to_string(src).with_context(|| format!("{}", src.display()))?;
+    let mut t: toml::Table = toml::from_str(&text).with_context(|| format!("{}", src.display()))?;
+    let base = src.parent().unwrap_or(std::path::Path::new("."));
+    for key in ["model_fwd", "model_inv", "model_judge"] {
+        if let Some(toml::Value::String(m)) = t.get_mut(key) {
+            let given = PathBuf::from(m.as_str());
+            if given.is_relative() {
+                let path = if base.join(&given).exists() {
+                    base.join(&given)
+                } else {
+                    crate::home::resolve(&given)
+                        .with_context(|| format!("{}: {key}", src.display()))?
+                        .path
+                };
+                *m = std::path::absolute(path)?.display().to_string();
+            }
+        }
+    }
+    let output = t
+        .entry("output")
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+        .as_table_mut()
+        .with_context(|| format!("{}: [output] is not a table", src.display()))?;
+    let rate = match output.get("rate_limit_deg_s") {
+        Some(v) => v
+            .as_float()
+            .or_else(|| v.as_integer().map(|i| i as f64))
+            .with_context(|| format!("{}: output.rate_limit_deg_s is not a number", src.display()))?,
+        None => bowden_compensator::ControllerConfig::shipped().output.rate_limit_deg_s,
+    };
+    output.insert("rate_limit_deg_s".into(), toml::Value::Float(rate * scale as f64));
+    std::fs::create_dir_all(dir)?;
+    let out = dir.join(format!(
+        "tick-{}",
+        src.file_name()
+            .map(|f| f.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    ));
+    std::fs::write(&out, toml::to_string(&t)?).with_context(|| format!("{}", out.display()))?;
+    Ok(out)
+}
+
+/// The controller config file of pipeline `template`'s compensator node (relative to the
+/// pipeline file, as the node resolves it).
+fn pipeline_controller(template: &std::path::Path) -> Result<PathBuf> {
+    let t: toml::Table = toml::from_str(&std::fs::read_to_string(template)?)?;
+    let file = t
+        .get("node")
+        .and_then(|n| n.as_array())
+        .and_then(|nodes| {
+            nodes
+                .iter()
+                .find(|n| n.get("name").and_then(|x| x.as_str()) == Some("compensator"))
+        })
+        .and_then(|n| n.get("params"))
+        .and_then(|p| p.get("config"))
+        .and_then(|c| c.as_str())
+        .with_context(|| format!("{}: no compensator node with a config", template.display()))?;
+    let path = PathBuf::from(file);
+    Ok(if path.is_relative() {
+        template.parent().unwrap_or(std::path::Path::new(".")).join(path)
+    } else {
+        path
+    })
+}
+
+/// Sets `[runtime] period_us` of pipeline file `file` to `tick_ns`.
+fn set_period(file: &std::path::Path, tick_ns: u64) -> Result<()> {
+    let mut t: toml::Table = toml::from_str(&std::fs::read_to_string(file)?)?;
+    t.entry("runtime")
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+        .as_table_mut()
+        .context("[runtime] is not a table")?
+        .insert("period_us".into(), toml::Value::Integer((tick_ns / 1000) as i64));
+    std::fs::write(file, toml::to_string(&t)?)?;
+    Ok(())
+}
+
+/// The pipeline `template`'s actuator rate limit (deg/s, one or per joint) times `scale`.
+fn actuator_rate_for_tick(template: &std::path::Path, scale: u64) -> Result<toml::Value> {
+    let t: toml::Table = toml::from_str(&std::fs::read_to_string(template)?)?;
+    let rate = t
+        .get("node")
+        .and_then(|n| n.as_array())
+        .and_then(|nodes| {
+            nodes
+                .iter()
+                .find(|n| n.get("name").and_then(|x| x.as_str()) == Some("actuator"))
+        })
+        .and_then(|n| n.get("params"))
+        .and_then(|p| p.get("max_rate_deg_s"))
+        .cloned()
+        .unwrap_or(toml::Value::Float(400.0));
+    let k = scale as f64;
+    let num = |v: &toml::Value| v.as_float().or_else(|| v.as_integer().map(|i| i as f64));
+    Ok(match rate {
+        toml::Value::Array(a) => toml::Value::Array(
+            a.iter()
+                .map(|v| num(v).map(|r| toml::Value::Float(r * k)))
+                .collect::<Option<Vec<_>>>()
+                .context("actuator max_rate_deg_s: not numbers")?,
+        ),
+        v => toml::Value::Float(num(&v).context("actuator max_rate_deg_s: not a number")? * k),
+    })
 }
 
 fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: [&str; 2]) -> Result<Prepared> {
@@ -236,8 +375,14 @@ fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: 
         paths.push(t);
     }
     let work_dir = report.join("pipelines");
-    let tick_ns = PipelineConfig::load(&a.config.path, &Overrides::default())?.period_ns();
-    let per_point = camera_fps_for(a.settle_ticks, tick_ns);
+    let base_tick_ns = PipelineConfig::load(&a.config.path, &Overrides::default())?.period_ns();
+    let (tick_ns, tick_scale) = match a.tick_ms {
+        None => (base_tick_ns, 1),
+        Some(ms) => shorter_tick(ms, base_tick_ns)?,
+    };
+    let settle_ticks =
+        u32::try_from(u64::from(a.settle_ticks) * tick_scale).context("--settle-ticks × the tick ratio")?;
+    let per_point = camera_fps_for(settle_ticks, tick_ns);
     let fps = match a.camera_fps {
         None => per_point,
         Some(f) => {
@@ -246,14 +391,14 @@ fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: 
             if !(f.is_finite()
                 && k >= 1.0
                 && (f - k * per_point).abs() <= 1e-9 * f
-                && a.settle_ticks.is_multiple_of(k as u32))
+                && settle_ticks.is_multiple_of(k as u32))
             {
                 bail!(
-                    "--camera-fps {f}: must be k × {per_point} fps (one frame per point) with k dividing --settle-ticks {} \
-                     (frames must fall on every point's last tick); e.g. {}",
-                    a.settle_ticks,
-                    (1..=a.settle_ticks)
-                        .filter(|k| a.settle_ticks.is_multiple_of(*k))
+                    "--camera-fps {f}: must be k × {per_point} fps (one frame per point) with k dividing the {} ticks \
+                     a point is held (frames must fall on every point's last tick); e.g. {}",
+                    settle_ticks,
+                    (1..=settle_ticks)
+                        .filter(|k| settle_ticks.is_multiple_of(*k))
                         .map(|k| format!("{}", f64::from(k) * per_point))
                         .collect::<Vec<_>>()
                         .join(", ")
@@ -261,6 +406,16 @@ fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: 
             }
             k * per_point
         }
+    };
+    // `--tick-ms`: one controller copy with the per-tick rate limit kept, for every pipeline.
+    let tick_controller = if tick_scale > 1 {
+        let src = match &a.controller_config {
+            Some(f) => f.path.clone(),
+            None => pipeline_controller(&a.config.path)?,
+        };
+        Some(controller_for_tick(&src, &work_dir, tick_scale)?)
+    } else {
+        None
     };
     let mut pipelines = Vec::new();
     for c in &a.controllers {
@@ -277,7 +432,18 @@ fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: 
                 set.push((node, "config", toml::Value::String(abs.display().to_string())));
             }
         }
+        if let Some(ctl) = &tick_controller {
+            set.push(("compensator", "config", toml::Value::String(ctl.display().to_string())));
+            set.push((
+                "actuator",
+                "max_rate_deg_s",
+                actuator_rate_for_tick(&a.config.path, tick_scale)?,
+            ));
+        }
         let file = pipeline_variant(&a.config.path, &set, &work_dir.join(format!("pipeline-{c}.toml")))?;
+        if tick_scale > 1 {
+            set_period(&file, tick_ns)?;
+        }
         if let (Some(f), true) = (&a.adapt, c != "uncalibrated") {
             let abs = std::fs::canonicalize(&f.path).with_context(|| f.shown())?;
             let state = std::path::absolute(report.join(format!("adapt-{c}")))?;
@@ -291,7 +457,7 @@ fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: 
         pipelines.push(file);
     }
     let settings = EvalSettings {
-        settle_ticks: a.settle_ticks,
+        settle_ticks,
         repeats,
         seed0: a.seed,
         work_dir,
@@ -309,6 +475,7 @@ fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: 
         repeats,
         report,
         tick_ns,
+        settle_ticks,
     })
 }
 
@@ -351,7 +518,8 @@ fn evaluate(args: EvaluateArgs) -> Result<()> {
         settings,
         repeats,
         report,
-        ..
+        tick_ns,
+        settle_ticks,
     } = prepare(&a, 5, "out/evaluate", ["report.md", "report.json"])?;
     let total: u64 =
         paths.iter().map(|t| t.q_deg.len() as u64).sum::<u64>() * a.controllers.len() as u64 * u64::from(repeats);
@@ -379,11 +547,12 @@ fn evaluate(args: EvaluateArgs) -> Result<()> {
     let summary = summarise(&robot, &runs);
     let (_, plant) = describe_plant(&a, repeats)?;
     let header = format!(
-        "{} trajectories × {} controllers × {} repeats; points held {} ticks; pipeline {}; robot {}; {}; {}.",
+        "{} trajectories × {} controllers × {} repeats; points held {} ticks of {} ms; pipeline {}; robot {}; {}; {}.",
         a.trajectories.len(),
         a.controllers.len(),
         repeats,
-        a.settle_ticks,
+        settle_ticks,
+        tick_ns as f64 / 1e6,
         a.config.shown(),
         a.robot.shown(),
         plant,
@@ -483,13 +652,14 @@ fn evaluate_session(a: &Files, minutes: f64) -> Result<()> {
         repeats,
         report,
         tick_ns,
+        settle_ticks,
     } = prepare(a, 1, "out/evaluate-session", ["session.md", "session.json"])?;
     let trajectories: Vec<(String, Vec<bowden_kinematics::JointsDeg>)> =
         paths.iter().map(|t| (t.name.clone(), t.q_deg.clone())).collect();
     let connect = |x: &bowden_kinematics::JointsDeg, y: &bowden_kinematics::JointsDeg| {
         bowden_trajectory::interpolate_eq16(&[*x, *y])
     };
-    let plan = session::plan(&trajectories, minutes * 60.0, a.settle_ticks, tick_ns, &connect)?;
+    let plan = session::plan(&trajectories, minutes * 60.0, settle_ticks, tick_ns, &connect)?;
     let total = plan.q_path.len() as u64 * a.controllers.len() as u64 * u64::from(repeats);
     let bar = progress_bar(total);
     let mut runs = Vec::new();
@@ -513,13 +683,14 @@ fn evaluate_session(a: &Files, minutes: f64) -> Result<()> {
     let summary = session::analyse(&robot, &plan, &runs, a.window_s, &slack)?;
     let header = format!(
         "Session of {:.1} simulated minutes ({} points per run, trajectories {} looped) × {} controllers × {} \
-         repeats; points held {} ticks; pipeline {}; robot {}; {}; {}.",
+         repeats; points held {} ticks of {} ms; pipeline {}; robot {}; {}; {}.",
         plan.duration_s / 60.0,
         plan.q_path.len(),
         a.trajectories.join(", "),
         a.controllers.len(),
         repeats,
-        a.settle_ticks,
+        settle_ticks,
+        tick_ns as f64 / 1e6,
         a.config.shown(),
         a.robot.shown(),
         plant,
