@@ -284,27 +284,31 @@ fn controller_for_tick(src: &std::path::Path, dir: &std::path::Path, scale: u64)
     Ok(out)
 }
 
-/// The controller config file of pipeline `template`'s compensator node (relative to the
-/// pipeline file, as the node resolves it).
-fn pipeline_controller(template: &std::path::Path) -> Result<PathBuf> {
+/// `params.KEY` of the node named `node` in pipeline file `template` (None if absent).
+fn node_param(template: &std::path::Path, node: &str, key: &str) -> Result<Option<toml::Value>> {
     let t: toml::Table = toml::from_str(&std::fs::read_to_string(template)?)?;
-    let file = t
-        .get("node")
+    Ok(t.get("node")
         .and_then(|n| n.as_array())
         .and_then(|nodes| {
             nodes
                 .iter()
-                .find(|n| n.get("name").and_then(|x| x.as_str()) == Some("compensator"))
+                .find(|n| n.get("name").and_then(|x| x.as_str()) == Some(node))
         })
         .and_then(|n| n.get("params"))
-        .and_then(|p| p.get("config"))
-        .and_then(|c| c.as_str())
+        .and_then(|p| p.get(key))
+        .cloned())
+}
+
+/// The controller config file of pipeline `template`'s compensator node (relative to the
+/// pipeline file, as the node resolves it).
+fn pipeline_controller(template: &std::path::Path) -> Result<PathBuf> {
+    let file = node_param(template, "compensator", "config")?
+        .and_then(|c| c.as_str().map(PathBuf::from))
         .with_context(|| format!("{}: no compensator node with a config", template.display()))?;
-    let path = PathBuf::from(file);
-    Ok(if path.is_relative() {
-        template.parent().unwrap_or(std::path::Path::new(".")).join(path)
+    Ok(if file.is_relative() {
+        template.parent().unwrap_or(std::path::Path::new(".")).join(file)
     } else {
-        path
+        file
     })
 }
 
@@ -322,19 +326,8 @@ fn set_period(file: &std::path::Path, tick_ns: u64) -> Result<()> {
 
 /// The pipeline `template`'s actuator rate limit (deg/s, one or per joint) times `scale`.
 fn actuator_rate_for_tick(template: &std::path::Path, scale: u64) -> Result<toml::Value> {
-    let t: toml::Table = toml::from_str(&std::fs::read_to_string(template)?)?;
-    let rate = t
-        .get("node")
-        .and_then(|n| n.as_array())
-        .and_then(|nodes| {
-            nodes
-                .iter()
-                .find(|n| n.get("name").and_then(|x| x.as_str()) == Some("actuator"))
-        })
-        .and_then(|n| n.get("params"))
-        .and_then(|p| p.get("max_rate_deg_s"))
-        .cloned()
-        .unwrap_or(toml::Value::Float(400.0));
+    // Absent: the actuator's default, 400 deg/s (components/actuator).
+    let rate = node_param(template, "actuator", "max_rate_deg_s")?.unwrap_or(toml::Value::Float(400.0));
     let k = scale as f64;
     let num = |v: &toml::Value| v.as_float().or_else(|| v.as_integer().map(|i| i as f64));
     Ok(match rate {

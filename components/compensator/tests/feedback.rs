@@ -362,6 +362,37 @@ fn the_feedback_table_is_validated_on_load_and_off_by_default() {
 
 /// Held points at the paper's pace: a new target every 500 ms, each within ±10° of the
 /// middle of the range, deterministic.
+/// 60 s of points held 0.5 s (`targets`), a 10 fps camera 66 ms late with 0.3° noise, and the
+/// toy robot with backlash `band_deg`, `offsets` (None: its own) and `slip`.
+fn paper_pace(
+    targets: fn(u64) -> [f64; J],
+    slip: Option<(u64, usize, f64)>,
+    band_deg: f64,
+    offsets: Option<[f64; J]>,
+) -> Scenario {
+    Scenario {
+        targets,
+        slip,
+        band_deg,
+        offsets,
+        frame_every_ms: 100,
+        latency_ms: 66,
+        noise_deg: 0.3,
+        nan_every: 0,
+        invalid_every: 0,
+        frames_until_ms: u64::MAX,
+        seconds: 60,
+    }
+}
+
+/// The `[feedback]` table of configs/controller-feedback.toml.
+fn shipped_feedback() -> FeedbackConfig {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    ControllerConfig::load(root.join("configs/controller-feedback.toml"))
+        .unwrap()
+        .feedback
+}
+
 /// Mean error over [from_ms, to_ms) without the first 100 ms of every 500 ms hold.
 fn held_error(err: &[f64], from_ms: usize, to_ms: usize) -> f64 {
     let v: Vec<f64> = (from_ms..to_ms).filter(|t| t % 500 >= 100).map(|t| err[t]).collect();
@@ -393,24 +424,9 @@ fn the_slow_correction_learns_a_slip_that_every_jump_forgets() {
     // correction has 4 frames per held point, and it is forgotten at every jump
     // (keep_on_jump = 0, as shipped): at every new point the error starts again from the
     // offset. The slow correction learns it once.
-    let sc = Scenario {
-        targets: near_held_points,
-        slip: Some((10_000, 4, 4.0)),
-        band_deg: 0.0,
-        offsets: None,
-        frame_every_ms: 100,
-        latency_ms: 66,
-        noise_deg: 0.3,
-        nan_every: 0,
-        invalid_every: 0,
-        frames_until_ms: u64::MAX,
-        seconds: 60,
-    };
+    let sc = paper_pace(near_held_points, Some((10_000, 4, 4.0)), 0.0, None);
     // The shipped [feedback] (configs/controller-feedback.toml), and the same without `b`.
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let slow = ControllerConfig::load(root.join("configs/controller-feedback.toml"))
-        .unwrap()
-        .feedback;
+    let slow = shipped_feedback();
     assert!(slow.bias_gain > 0.0 && slow.keep_on_jump == 0.0);
     let local = FeedbackConfig {
         bias_gain: 0.0,
@@ -502,23 +518,8 @@ fn the_slow_correction_leaves_a_zero_mean_residual_alone() {
     // direction each point is approached from. Its mean over new points stays inside the dead
     // band, so b never moves and the commands are those of the local correction alone, bit
     // for bit.
-    let sc = Scenario {
-        targets: held_points,
-        slip: None,
-        band_deg: 0.6,
-        offsets: Some([0.0; J]),
-        frame_every_ms: 100,
-        latency_ms: 66,
-        noise_deg: 0.3,
-        nan_every: 0,
-        invalid_every: 0,
-        frames_until_ms: u64::MAX,
-        seconds: 60,
-    };
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let slow = ControllerConfig::load(root.join("configs/controller-feedback.toml"))
-        .unwrap()
-        .feedback;
+    let sc = paper_pace(held_points, None, 0.6, Some([0.0; J]));
+    let slow = shipped_feedback();
     let local = FeedbackConfig {
         bias_gain: 0.0,
         ..slow.clone()
