@@ -1,5 +1,6 @@
 //! Compensator hot paths (`cargo bench --bench compensator`): the incremental TCN evaluator
-//! (one trial, one trial with the Jacobian, full and shifted prefix), tract's full evaluation
+//! (one trial, one trial with the Jacobian — through the compiled narrow plan and through the
+//! generic node walk — full and shifted prefix), tract's full evaluation
 //! of the same window, and whole compensation steps per mode; on test fixtures and on the
 //! shipped models. Percentiles over ≥ 100k steps
 //! with the naive loop beside them: `bowden bench compensate`.
@@ -45,6 +46,16 @@ fn evaluators(c: &mut Criterion) {
         c.bench_function(&format!("{name}: incremental trial + 5x5 jacobian"), |b| {
             b.iter(|| inc.eval_jacobian(black_box(&last), &mut out, &mut jac))
         });
+        if inc.is_narrow() {
+            // The same trials through the generic node walk: what the compiled plan saves.
+            let mut walk = inc.clone().into_generic();
+            c.bench_function(&format!("{name}: incremental trial, node walk"), |b| {
+                b.iter(|| walk.eval(black_box(&last), &mut out))
+            });
+            c.bench_function(&format!("{name}: incremental trial + 5x5 jacobian, node walk"), |b| {
+                b.iter(|| walk.eval_jacobian(black_box(&last), &mut out, &mut jac))
+            });
+        }
         c.bench_function(&format!("{name}: prefix, full (79 columns)"), |b| {
             b.iter(|| inc.set_history(black_box(&window[..79 * 5])))
         });

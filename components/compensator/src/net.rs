@@ -27,6 +27,8 @@
 
 use std::sync::Arc;
 
+mod narrow;
+
 /// Channel counts are padded to a multiple of this so inner loops run on whole vectors.
 pub(crate) const LANES: usize = 8;
 
@@ -443,6 +445,9 @@ pub struct IncrementalNet {
     zeros: Vec<f32>,
     rf: Vec<usize>,
     prefix_valid: bool,
+    /// The compiled trial of a narrow net (every value ≤ LANES channels: the TCNs), used by
+    /// `eval` and `eval_jacobian` instead of the node walk; same bits (see [`narrow`]).
+    narrow: Option<narrow::Plan>,
 }
 
 impl IncrementalNet {
@@ -519,8 +524,21 @@ impl IncrementalNet {
             zeros: vec![0.0; zeros_len],
             rf,
             prefix_valid: false,
+            narrow: narrow::Plan::compile(&net),
             net,
         }
+    }
+
+    /// Whether trials run through the compiled narrow plan (TCN-like nets ≤ 8 channels wide).
+    pub fn is_narrow(&self) -> bool {
+        self.narrow.is_some()
+    }
+
+    /// Evaluates trials by the generic node walk even where a narrow plan exists: the
+    /// reference the plan is tested and benchmarked against.
+    pub fn into_generic(mut self) -> Self {
+        self.narrow = None;
+        self
     }
 
     pub fn seq_len(&self) -> usize {
@@ -567,6 +585,9 @@ impl IncrementalNet {
             self.trial_partial(n);
         }
         self.prefix_valid = true;
+        if let Some(plan) = &mut self.narrow {
+            plan.load_partials(&self.partial);
+        }
     }
 
     /// The history gained exactly one entry (`history_deg` is the new history, i.e. the old
@@ -595,6 +616,9 @@ impl IncrementalNet {
             }
             self.trial_partial(n);
         }
+        if let Some(plan) = &mut self.narrow {
+            plan.load_partials(&self.partial);
+        }
     }
 
     /// Marks the prefix stale (the next [`Self::shift_history`] recomputes in full).
@@ -616,6 +640,11 @@ impl IncrementalNet {
     /// model output (degrees). Requires [`Self::set_history`] first.
     pub fn eval(&mut self, last_deg: &[f64], out_deg: &mut [f64]) {
         debug_assert!(self.prefix_valid, "set_history before eval");
+        if let Some(plan) = &mut self.narrow {
+            assert_eq!(last_deg.len(), self.j);
+            plan.eval(last_deg, out_deg);
+            return;
+        }
         self.set_last(last_deg);
         for n in 1..self.net.nodes.len() {
             self.trial(n);
@@ -627,6 +656,11 @@ impl IncrementalNet {
     /// ∂out_r/∂last_c) by forward-mode differentiation in the same pass.
     pub fn eval_jacobian(&mut self, last_deg: &[f64], out_deg: &mut [f64], jac: &mut [f64]) {
         debug_assert!(self.prefix_valid, "set_history before eval");
+        if let Some(plan) = &mut self.narrow {
+            assert_eq!(last_deg.len(), self.j);
+            plan.eval_jacobian(last_deg, out_deg, jac);
+            return;
+        }
         self.set_last(last_deg);
         for n in 1..self.net.nodes.len() {
             self.trial(n);
@@ -1872,9 +1906,11 @@ mod tests {
 
     #[test]
     fn jacobian_matches_finite_differences() {
-        for with_lstm in [false, true] {
+        for (with_lstm, simplified) in [(false, false), (true, false), (false, true), (true, true)] {
             let (l, j) = (16, 3);
-            let net = Arc::new(toy_net(l, j, with_lstm));
+            // Simplified, a block's ReLU and residual add are fused into its second conv.
+            let net = toy_net(l, j, with_lstm);
+            let net = Arc::new(if simplified { net.simplify() } else { net });
             let mut ev = IncrementalNet::new(net);
             let mut rng = ChaCha8Rng::seed_from_u64(3);
             for _ in 0..20 {
@@ -1899,11 +1935,71 @@ mod tests {
                         let an = jac[r * j + c];
                         // ReLU kinks inside ±h make central differences disagree; f32 noise
                         // is ~1e-3 here. A wrong formula is off by O(1).
-                        assert!((fd - an).abs() < 2e-2 * (1.0 + an.abs()), "d{r}/d{c}: fd {fd} vs {an}");
+                        assert!(
+                            (fd - an).abs() < 2e-2 * (1.0 + an.abs()),
+                            "lstm {with_lstm} simplified {simplified} d{r}/d{c}: fd {fd} vs {an}"
+                        );
                     }
                 }
             }
         }
+    }
+
+    /// Runs `a` (the narrow plan) and `b` (the node walk) through the same shifted windows and
+    /// trials; every output and Jacobian entry must have the same bits.
+    fn assert_narrow_matches_generic(net: Net, seed: u64, what: &str) {
+        let (l, j) = (net.seq_len, net.joints);
+        let net = Arc::new(net);
+        let mut a = IncrementalNet::new(net.clone());
+        assert!(a.is_narrow(), "{what}: no narrow plan");
+        let mut b = IncrementalNet::new(net).into_generic();
+        assert!(!b.is_narrow());
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut hist = vec![0.0f64; (l - 1) * j];
+        let bits = |v: &[f64]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+        for step in 0..40 {
+            hist.copy_within(j.., 0);
+            for c in 0..j {
+                hist[(l - 2) * j + c] = rng.random_range(-60.0..60.0);
+            }
+            // Every fifth window from scratch, the others shifted: both feed the plan.
+            if step % 5 == 0 {
+                a.set_history(&hist);
+                b.set_history(&hist);
+            } else {
+                a.shift_history(&hist);
+                b.shift_history(&hist);
+            }
+            for _ in 0..6 {
+                let last: Vec<f64> = (0..j).map(|_| rng.random_range(-60.0..60.0)).collect();
+                let (mut ya, mut yb) = (vec![0.0; j], vec![0.0; j]);
+                a.eval(&last, &mut ya);
+                b.eval(&last, &mut yb);
+                assert_eq!(bits(&ya), bits(&yb), "{what} step {step}: eval");
+                let (mut ja, mut jb) = (vec![0.0; j * j], vec![0.0; j * j]);
+                a.eval_jacobian(&last, &mut ya, &mut ja);
+                b.eval_jacobian(&last, &mut yb, &mut jb);
+                assert_eq!(bits(&ya), bits(&yb), "{what} step {step}: eval_jacobian value");
+                assert_eq!(bits(&ja), bits(&jb), "{what} step {step}: jacobian");
+            }
+        }
+    }
+
+    #[test]
+    fn narrow_plan_is_bit_identical_to_the_node_walk() {
+        for (l, j) in [(20usize, 3usize), (16, 5), (12, 8), (9, 1)] {
+            let net = toy_net(l, j, false);
+            assert_narrow_matches_generic(net.clone(), 31 + j as u64, &format!("toy L{l} J{j}"));
+            // Simplified: ReLUs and residual adds fused into the convolutions.
+            assert_narrow_matches_generic(net.simplify(), 37 + j as u64, &format!("simplified toy L{l} J{j}"));
+        }
+    }
+
+    #[test]
+    fn nets_wider_than_a_register_or_with_an_lstm_keep_the_node_walk() {
+        assert!(!IncrementalNet::new(Arc::new(toy_net(10, 3, true))).is_narrow());
+        assert!(!IncrementalNet::new(Arc::new(toy_net(10, 9, false))).is_narrow());
+        assert!(IncrementalNet::new(Arc::new(toy_net(10, 8, false))).is_narrow());
     }
 
     #[test]
