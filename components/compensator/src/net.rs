@@ -27,6 +27,7 @@
 
 use std::sync::Arc;
 
+mod activation;
 mod narrow;
 
 /// Channel counts are padded to a multiple of this so inner loops run on whole vectors.
@@ -871,12 +872,8 @@ impl IncrementalNet {
                     matvec_blocked(z, b, wb, rows, 0, xs);
                 }
                 // Gate activations in place: i, o, f sigmoid; c̃ tanh.
-                for v in z[..3 * p].iter_mut() {
-                    *v = sigmoid(*v);
-                }
-                for v in z[3 * p..].iter_mut() {
-                    *v = v.tanh();
-                }
+                let (sig, th) = z.split_at_mut(3 * p);
+                activation::gates(sig, th);
                 let (gi, rest) = z.split_at(p);
                 let (go, rest) = rest.split_at(p);
                 let (gf, gc) = rest.split_at(p);
@@ -885,10 +882,9 @@ impl IncrementalNet {
                 let h = &mut y_all[yo..yo + p];
                 for q in 0..p {
                     let c_prev = if t > 0 { c_prev_all[(t - 1) * p + q] } else { 0.0 };
-                    let c = gf[q] * c_prev + gi[q] * gc[q];
-                    c_cur[q] = c;
-                    h[q] = go[q] * c.tanh();
+                    c_cur[q] = gf[q] * c_prev + gi[q] * gc[q];
                 }
+                activation::out_gate(h, go, c_cur);
             }
             _ => unreachable!("lstm_column on an LSTM"),
         }
@@ -1110,7 +1106,7 @@ impl IncrementalNet {
                         let dg = (1.0 - gg * gg) * dz[3 * p + q];
                         let c_prev = if l >= 2 { cst[(l - 2) * p + q] } else { 0.0 };
                         let dc = df * c_prev + di * gg + gi * dg;
-                        let tc = cst[(l - 1) * p + q].tanh();
+                        let tc = activation::tanh(cst[(l - 1) * p + q]);
                         dy[q] = dout * tc + go * (1.0 - tc * tc) * dc;
                     }
                 }
@@ -1409,11 +1405,6 @@ fn relu_in_place(y: &mut [f32]) {
     for v in y.iter_mut() {
         *v = v.max(0.0);
     }
-}
-
-#[inline]
-fn sigmoid(x: f32) -> f32 {
-    1.0 / (1.0 + (-x).exp())
 }
 
 /// `y = steps(x)`: the first step reads `x`, the others work in place (the same arithmetic as
