@@ -59,6 +59,8 @@ pub struct BenchOptions {
     /// Models, refinement settings and history rule come from here; the bench disables the
     /// time budget so every step runs its full iteration count.
     pub config: ControllerConfig,
+    /// How long to probe the platform's interruptions before the rows (0: not probed).
+    pub probe: std::time::Duration,
 }
 
 impl std::fmt::Debug for BenchOptions {
@@ -72,6 +74,7 @@ impl std::fmt::Debug for BenchOptions {
             .field("paced", &self.paced)
             .field("worker_placement", &self.worker_placement.is_some())
             .field("config", &self.config)
+            .field("probe", &self.probe)
             .finish()
     }
 }
@@ -129,6 +132,70 @@ pub struct BenchReport {
     pub paper_iterations: u32,
     pub rows: Vec<Latency>,
     pub ratios: Vec<Ratio>,
+    /// What the platform took from the bench thread, probed just before the rows.
+    pub interruptions: Option<Interruptions>,
+}
+
+/// The platform's interruptions of a busy thread: gaps in a tight loop that only reads the
+/// clock (what `hwlatdetect` and cyclictest's busy mode look at), on the bench thread with its
+/// pinning and policy. A step of length s meets one with probability ≈ s · `per_s`; once that
+/// exceeds 0.1 %, the step's p99.9 is the step plus an interruption, whatever the code does.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Interruptions {
+    pub probe_ns: u64,
+    /// Gaps longer than this count as interruptions (a clock read takes ~20 ns).
+    pub threshold_ns: u64,
+    pub count: u64,
+    pub per_s: f64,
+    pub p50_ns: u64,
+    pub mean_ns: f64,
+    pub max_ns: u64,
+    /// The longest step an interruption reaches in fewer than 0.1 % of steps: 1e-3 / `per_s`.
+    pub p999_clear_step_ns: f64,
+}
+
+/// Probes the calling thread's interruptions for `duration` (see [`Interruptions`]).
+pub fn probe_interruptions(duration: std::time::Duration) -> Interruptions {
+    let start = std::time::Instant::now();
+    probe_gaps(duration.as_nanos() as u64, || start.elapsed().as_nanos() as u64)
+}
+
+/// The probe over any clock (ns since the start): gaps between consecutive reads.
+fn probe_gaps(duration_ns: u64, mut now_ns: impl FnMut() -> u64) -> Interruptions {
+    const THRESHOLD_NS: u64 = 5_000;
+    let mut gaps: Vec<u64> = Vec::with_capacity(1 << 16);
+    let (mut count, mut sum, mut max) = (0u64, 0u128, 0u64);
+    let mut prev = now_ns();
+    let start = prev;
+    loop {
+        let t = now_ns();
+        let d = t.saturating_sub(prev);
+        prev = t;
+        if d > THRESHOLD_NS {
+            count += 1;
+            sum += d as u128;
+            max = max.max(d);
+            if gaps.len() < gaps.capacity() {
+                gaps.push(d);
+            }
+        }
+        if t - start >= duration_ns {
+            break;
+        }
+    }
+    let probe_ns = (prev - start).max(1);
+    gaps.sort_unstable();
+    let per_s = count as f64 / (probe_ns as f64 * 1e-9);
+    Interruptions {
+        probe_ns,
+        threshold_ns: THRESHOLD_NS,
+        count,
+        per_s,
+        p50_ns: gaps.get(gaps.len() / 2).copied().unwrap_or(0),
+        mean_ns: if count > 0 { sum as f64 / count as f64 } else { 0.0 },
+        max_ns: max,
+        p999_clear_step_ns: if per_s > 0.0 { 1e-3 / per_s * 1e9 } else { f64::INFINITY },
+    }
 }
 
 /// eq. (16): random waypoints within 80 % of the joint limits (jaws not crossing), joined by
@@ -302,6 +369,7 @@ pub fn run(opts: &BenchOptions, robot: &Robot, progress: &mut dyn FnMut(u64)) ->
     let (inv, inv_name) = load(&opts.config, "model_inv", Direction::Inverse)?;
     let mut cfg = opts.config.clone();
     cfg.budget.budget_ns = 0;
+    let interruptions = (!opts.probe.is_zero()).then(|| probe_interruptions(opts.probe));
     let mut rows = Vec::new();
     let mut ratios = Vec::new();
     for &scenario in &opts.scenarios {
@@ -387,6 +455,7 @@ pub fn run(opts: &BenchOptions, robot: &Robot, progress: &mut dyn FnMut(u64)) ->
         paper_iterations: cfg.paper.iterations,
         rows,
         ratios,
+        interruptions,
     })
 }
 
@@ -560,6 +629,19 @@ impl BenchReport {
                 lag,
             );
         }
+        if let Some(i) = &self.interruptions {
+            s += &format!(
+                "\nPlatform interruptions of this thread (a {:.1} s busy clock loop before the rows, gaps > {} µs): {:.0}/s, p50 {} µs, mean {:.1} µs, max {} µs. A step longer than {:.1} µs meets one in more than 0.1 % of steps, so its p99.9 includes about {:.0} µs that no code change removes (on an isolated `nohz_full` CPU the rate falls towards 0).\n",
+                i.probe_ns as f64 * 1e-9,
+                us(i.threshold_ns),
+                i.per_s,
+                us(i.p50_ns),
+                i.mean_ns / 1000.0,
+                us(i.max_ns),
+                i.p999_clear_step_ns / 1000.0,
+                i.mean_ns / 1000.0,
+            );
+        }
         s += "\n| scenario | naive tract / incremental (paper mode): p50 | mean | p99.9 |\n|---|---:|---:|---:|\n";
         for r in &self.ratios {
             s += &format!(
@@ -617,10 +699,24 @@ mod tests {
                 mean: 200.0,
                 p999: 200.0,
             }],
+            interruptions: Some(Interruptions {
+                probe_ns: 500_000_000,
+                threshold_ns: 5_000,
+                count: 200,
+                per_s: 400.0,
+                p50_ns: 20_000,
+                mean_ns: 23_500.0,
+                max_ns: 150_000,
+                p999_clear_step_ns: 2_500.0,
+            }),
         };
         let md = r.to_markdown();
         assert!(
             md.contains("| fine | paper | tract | in step | 10 | 2000.00 |") && md.contains("200×"),
+            "{md}"
+        );
+        assert!(
+            md.contains("400/s, p50 20.00 µs, mean 23.5 µs") && md.contains("longer than 2.5 µs"),
             "{md}"
         );
         let dir = tempfile::tempdir().unwrap();
@@ -647,5 +743,39 @@ mod tests {
         }
         assert!(exact > 400, "most consecutive targets are one step apart ({exact})");
         assert!(t.iter().all(|q| robot.check_limits(q).is_ok()));
+    }
+}
+
+#[cfg(test)]
+mod probe_tests {
+    /// A clock advancing 50 ns per read with a 20 µs stall every 10 000 reads (one per
+    /// 519.95 µs: 1 923 in 1 s) and one 150 µs stall: the probe must count, rate and size them.
+    #[test]
+    fn probe_counts_rates_and_sizes_gaps() {
+        let mut t = 0u64;
+        let mut k = 0u64;
+        let i = super::probe_gaps(1_000_000_000, || {
+            k += 1;
+            t += if k == 777_777 {
+                150_000
+            } else if k.is_multiple_of(10_000) {
+                20_000
+            } else {
+                50
+            };
+            t
+        });
+        assert!((1_922..=1_925).contains(&i.count), "{i:?}");
+        assert!((i.per_s - i.count as f64).abs() < 2.0, "{i:?}");
+        assert_eq!((i.p50_ns, i.max_ns), (20_000, 150_000), "{i:?}");
+        assert!((i.p999_clear_step_ns - 1e6 / i.per_s).abs() < 1e-6 * i.p999_clear_step_ns);
+        // A clock that never stalls: no interruption, every step clears.
+        let mut t = 0u64;
+        let quiet = super::probe_gaps(1_000_000, || {
+            t += 40;
+            t
+        });
+        assert_eq!(quiet.count, 0);
+        assert!(quiet.p999_clear_step_ns.is_infinite());
     }
 }

@@ -222,6 +222,17 @@ pub fn paper_refine<M: WindowModel + ?Sized>(
 
 /// Solves the SPD system `a·x = b` (n×n, row-major) in place by Cholesky; false if not SPD.
 fn cholesky_solve(a: &mut [f64], b: &mut [f64], n: usize) -> bool {
+    // The robot's five joints get a copy with n known, which the compiler unrolls: the same
+    // operations in the same order, so the same bits.
+    if n == 5 {
+        cholesky_solve_n(a, b, 5)
+    } else {
+        cholesky_solve_n(a, b, n)
+    }
+}
+
+#[inline(always)]
+fn cholesky_solve_n(a: &mut [f64], b: &mut [f64], n: usize) -> bool {
     for c in 0..n {
         let mut d = a[c * n + c];
         for k in 0..c {
@@ -343,13 +354,20 @@ pub fn newton_refine<M: WindowModel + ?Sized>(
         for c in 0..j {
             probe[c * j + c] += 1e-10 * trace.max(1e-300);
         }
-        let singular = trace.is_nan() || trace <= 0.0 || !cholesky_solve(&mut probe[..j * j], &mut rhs[..j], j) || {
-            // Pivots: recompute the smallest diagonal of the Cholesky factor relative to trace.
-            let min_piv = (0..j)
-                .map(|c| probe[c * j + c] * probe[c * j + c])
-                .fold(f64::INFINITY, f64::min);
-            min_piv < 1e-8 * trace
-        };
+        // With the prior, every pivot² of the probe is at least μ² (the smallest eigenvalue
+        // of JᵀJ + μ²I): when μ² clears the 1e-8·trace threshold (with a factor 2 against
+        // rounding, ~1e-15·trace here) the probe cannot fail, and its solve is skipped.
+        let prior_conditions = mu2 >= 2e-8 * trace;
+        let singular = trace.is_nan()
+            || trace <= 0.0
+            || (!prior_conditions && !cholesky_solve(&mut probe[..j * j], &mut rhs[..j], j))
+            || (!prior_conditions && {
+                // Pivots: recompute the smallest diagonal of the Cholesky factor relative to trace.
+                let min_piv = (0..j)
+                    .map(|c| probe[c * j + c] * probe[c * j + c])
+                    .fold(f64::INFINITY, f64::min);
+                min_piv < 1e-8 * trace
+            });
         let mut used_fallback = false;
         if singular {
             for c in 0..j {
