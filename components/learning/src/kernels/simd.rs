@@ -68,65 +68,6 @@ macro_rules! simd_fn {
 }
 pub(crate) use simd_fn;
 
-const LOG2E: f32 = std::f32::consts::LOG2_E;
-const LN2_HI: f32 = 0.693_359_4;
-const LN2_LO: f32 = -2.121_944_4e-4;
-/// 1.5·2²³: adding and subtracting it rounds to the nearest integer in f32.
-const ROUND_MAGIC: f32 = 12_582_912.0;
-
-/// e^x in f32 (Cephes' polynomial, ≈ 1 ulp over the clamped range), branch-free so a loop
-/// of it vectorises.
-#[inline(always)]
-pub fn exp_f32(x: f32) -> f32 {
-    let x = x.clamp(-87.0, 88.0);
-    let shifted = x * LOG2E + ROUND_MAGIC;
-    let n = shifted - ROUND_MAGIC;
-    let r = x - n * LN2_HI - n * LN2_LO;
-    let mut p = 1.987_569_1e-4f32;
-    p = p * r + 1.398_199_9e-3;
-    p = p * r + 8.333_452e-3;
-    p = p * r + 4.166_579_6e-2;
-    p = p * r + 1.666_666_5e-1;
-    p = p * r + 0.5;
-    let e = p * r * r + r + 1.0;
-    // 2ⁿ from the integer n sitting in the low mantissa bits of `shifted` (its bits are
-    // 0x4B40_0000 + n): integer ops only, so the loop stays vectorised (a float → int `as`
-    // cast saturates and is scalarised).
-    let scale = f32::from_bits(shifted.to_bits().wrapping_sub(0x4B40_0000 - 127) << 23);
-    e * scale
-}
-
-#[inline(always)]
-pub fn sigmoid_f32(x: f32) -> f32 {
-    1.0 / (1.0 + exp_f32(-x))
-}
-
-#[inline(always)]
-pub fn tanh_f32(x: f32) -> f32 {
-    // 2σ(2x) − 1; absolute error ~1e-7 near 0, which is what matters here.
-    2.0 / (1.0 + exp_f32(-2.0 * x)) - 1.0
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn exp_sigmoid_tanh_match_std() {
-        let mut worst_exp = 0.0f64;
-        let mut worst_abs = 0.0f64;
-        let mut x = -30.0f32;
-        while x < 30.0 {
-            let e = exp_f32(x) as f64;
-            let r = (x as f64).exp();
-            worst_exp = worst_exp.max(((e - r) / r).abs());
-            worst_abs = worst_abs.max((sigmoid_f32(x) as f64 - 1.0 / (1.0 + (-(x as f64)).exp())).abs());
-            worst_abs = worst_abs.max((tanh_f32(x) as f64 - (x as f64).tanh()).abs());
-            x += 0.0137;
-        }
-        assert!(worst_exp < 3e-7, "exp rel err {worst_exp}");
-        assert!(worst_abs < 3e-7, "sigmoid/tanh abs err {worst_abs}");
-        assert!(sigmoid_f32(-200.0) >= 0.0 && sigmoid_f32(-200.0) < 1e-37);
-        assert!(sigmoid_f32(200.0) == 1.0 && tanh_f32(200.0) == 1.0 && tanh_f32(-200.0) == -1.0);
-    }
-}
+// The activations are shared with the real-time evaluators, which must run a model with the
+// functions it was trained with.
+pub use bowden_fastmath::{exp_f32, sigmoid_f32, tanh_f32};
