@@ -2,7 +2,7 @@
 """Tables of docs/results/adapt/README.md from the session reports run.sh wrote."""
 import json, os, re, sys
 
-OUT = os.path.dirname(os.path.abspath(__file__))
+OUT = os.environ.get("OUT") or os.path.dirname(os.path.abspath(__file__))
 
 
 def session(name):
