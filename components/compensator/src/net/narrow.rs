@@ -10,11 +10,10 @@
 //! convolution's newest-tap weights copied beside it, and the whole pass is one function
 //! compiled for AVX so every step inlines.
 //!
-//! **Same bits.** Every lane is computed by the same IEEE operations in the same order as the
-//! generic path ([`super::matvec_body`]: rows in groups of four accumulators started from
-//! zero, `init + ((a0 + a1) + (a2 + a3))`, then ReLU, then the residual; affine steps in
-//! order; no FMA), so [`Plan::eval`] and [`Plan::eval_jacobian`] return exactly what the
-//! generic evaluator returns. Tests compare the bits on every fixture and on random nets.
+//! **Same bits.** A convolution's column is the generic path's own [`super::matvec_body`] on
+//! one block; the affine, ReLU and add steps are the same IEEE operations in the same order
+//! (no FMA). So [`Plan::eval`] and [`Plan::eval_jacobian`] return exactly what the generic
+//! evaluator returns; tests compare the bits on every fixture and on random nets.
 
 use super::{AffineOp, Net, NodeId, Op, LANES};
 
@@ -276,50 +275,18 @@ fn value(step: &Step, vals: &[Col], partial: &Col) -> Col {
             rows,
             relu,
             residual,
-        } => {
-            let mut y = product(partial, rows, &vals[*src], *c_in);
-            if *relu {
-                for v in y.iter_mut() {
-                    *v = v.max(0.0);
-                }
-            }
-            if let Some(r) = residual {
-                let res = &vals[*r];
-                for q in 0..LANES {
-                    y[q] += res[q];
-                }
-            }
-            y
-        }
+        } => product(partial, rows, &vals[*src], *c_in, *relu, residual.map(|r| &vals[r])),
         Step::TakeLast { src } => vals[*src],
     }
 }
 
-/// `init + Σ_r x[r]·rows[r]` over `r < c_in`: [`super::matvec_body`]'s order for one block.
+/// `init + Σ_r x[r]·rows[r]` over `r < c_in`, then the ReLU and the residual if given: the
+/// generic evaluator's own [`super::matvec_body`] on one 8-lane block, so the sums are the same
+/// by construction, not by copy.
 #[inline(always)]
-fn product(init: &Col, rows: &[Col; LANES], x: &Col, c_in: usize) -> Col {
-    let mut acc = [[0.0f32; LANES]; 4];
-    let mut r = 0;
-    while r + 4 <= c_in {
-        for (g, a) in acc.iter_mut().enumerate() {
-            let (row, xr) = (&rows[r + g], x[r + g]);
-            for q in 0..LANES {
-                a[q] += row[q] * xr;
-            }
-        }
-        r += 4;
-    }
-    while r < c_in {
-        let (row, xr) = (&rows[r], x[r]);
-        for q in 0..LANES {
-            acc[0][q] += row[q] * xr;
-        }
-        r += 1;
-    }
+fn product(init: &Col, rows: &[Col; LANES], x: &Col, c_in: usize, relu: bool, res: Option<&Col>) -> Col {
     let mut y = [0.0f32; LANES];
-    for q in 0..LANES {
-        y[q] = init[q] + ((acc[0][q] + acc[1][q]) + (acc[2][q] + acc[3][q]));
-    }
+    super::matvec_body(&mut y, init, rows.as_flattened(), &x[..c_in], relu, res.map(|r| &r[..]));
     y
 }
 
@@ -370,7 +337,7 @@ fn tangent(step: &Step, y: &Col, before: &[Col], dy: &mut [Col], j: usize) {
                 relu,
                 residual,
             } => {
-                let mut t = product(&ZERO, rows, &before[src * j + d], *c_in);
+                let mut t = product(&ZERO, rows, &before[src * j + d], *c_in, false, None);
                 if *relu {
                     mask(&mut t);
                 }
