@@ -268,6 +268,25 @@ fn cholesky_solve_n(a: &mut [f64], b: &mut [f64], n: usize) -> bool {
     b.iter().all(|v| v.is_finite())
 }
 
+/// Whether the normal matrix `a` (j×j) is numerically singular: its Cholesky factor, with a
+/// 1e-10·trace nudge, fails or has a pivot² below 1e-8·trace.
+fn probe_singular(a: &[f64], trace: f64, j: usize) -> bool {
+    let mut probe = [0.0f64; MAX_JOINTS * MAX_JOINTS];
+    let mut rhs = [0.0f64; MAX_JOINTS];
+    probe[..j * j].copy_from_slice(&a[..j * j]);
+    for c in 0..j {
+        probe[c * j + c] += 1e-10 * trace.max(1e-300);
+    }
+    if !cholesky_solve(&mut probe[..j * j], &mut rhs[..j], j) {
+        return true;
+    }
+    // Pivots: the smallest diagonal of the Cholesky factor relative to trace.
+    let min_piv = (0..j)
+        .map(|c| probe[c * j + c] * probe[c * j + c])
+        .fold(f64::INFINITY, f64::min);
+    min_piv < 1e-8 * trace
+}
+
 /// Damped Gauss–Newton (Levenberg–Marquardt) on `f(q) = q_desired`. `q` holds the initial
 /// estimate on entry and the best candidate on return (every accepted step lowers ‖loss‖², so
 /// the current point is the best); `pred` the prediction there. `project` maps a candidate
@@ -347,27 +366,12 @@ pub fn newton_refine<M: WindowModel + ?Sized>(
             g[c1] = -s - mu2 * (q[c1] - q0[c1]);
         }
         // Singular JᵀJ (a joint the model does not respond to: dead ReLUs): fall back to the
-        // fixed step, as Algorithm 1 but with a usable size.
-        let mut probe = [0.0f64; MAX_JOINTS * MAX_JOINTS];
-        let mut rhs = [0.0f64; MAX_JOINTS];
-        probe[..j * j].copy_from_slice(a);
-        for c in 0..j {
-            probe[c * j + c] += 1e-10 * trace.max(1e-300);
-        }
-        // With the prior, every pivot² of the probe is at least μ² (the smallest eigenvalue
-        // of JᵀJ + μ²I): when μ² clears the 1e-8·trace threshold (with a factor 2 against
-        // rounding, ~1e-15·trace here) the probe cannot fail, and its solve is skipped.
-        let prior_conditions = mu2 >= 2e-8 * trace;
-        let singular = trace.is_nan()
-            || trace <= 0.0
-            || (!prior_conditions && !cholesky_solve(&mut probe[..j * j], &mut rhs[..j], j))
-            || (!prior_conditions && {
-                // Pivots: recompute the smallest diagonal of the Cholesky factor relative to trace.
-                let min_piv = (0..j)
-                    .map(|c| probe[c * j + c] * probe[c * j + c])
-                    .fold(f64::INFINITY, f64::min);
-                min_piv < 1e-8 * trace
-            });
+        // fixed step, as Algorithm 1 but with a usable size. With the prior, every pivot² of
+        // the probe is at least μ² (the smallest eigenvalue of JᵀJ + μ²I): when μ² clears the
+        // 1e-8·trace threshold (with a factor 2 against rounding, ~1e-15·trace here) the probe
+        // cannot fail and is skipped.
+        let conditioned = mu2 >= 2e-8 * trace;
+        let singular = trace.is_nan() || trace <= 0.0 || (!conditioned && probe_singular(a, trace, j));
         let mut used_fallback = false;
         if singular {
             for c in 0..j {
