@@ -261,14 +261,7 @@ fn value(step: &Step, vals: &[Col], partial: &Col) -> Col {
             }
             y
         }
-        Step::Add { a, b } => {
-            let (x, z) = (&vals[*a], &vals[*b]);
-            let mut y = [0.0f32; LANES];
-            for q in 0..LANES {
-                y[q] = x[q] + z[q];
-            }
-            y
-        }
+        Step::Add { a, b } => add(&vals[*a], &vals[*b]),
         Step::Conv {
             src,
             c_in,
@@ -278,6 +271,16 @@ fn value(step: &Step, vals: &[Col], partial: &Col) -> Col {
         } => product(partial, rows, &vals[*src], *c_in, *relu, residual.map(|r| &vals[r])),
         Step::TakeLast { src } => vals[*src],
     }
+}
+
+/// `x + z`, lane by lane.
+#[inline(always)]
+fn add(x: &Col, z: &Col) -> Col {
+    let mut y = [0.0f32; LANES];
+    for q in 0..LANES {
+        y[q] = x[q] + z[q];
+    }
+    y
 }
 
 /// `init + Σ_r x[r]·rows[r]` over `r < c_in`, then the ReLU and the residual if given: the
@@ -322,14 +325,7 @@ fn tangent(step: &Step, y: &Col, before: &[Col], dy: &mut [Col], j: usize) {
                 mask(&mut t);
                 t
             }
-            Step::Add { a, b } => {
-                let (x, z) = (&before[a * j + d], &before[b * j + d]);
-                let mut t = [0.0f32; LANES];
-                for q in 0..LANES {
-                    t[q] = x[q] + z[q];
-                }
-                t
-            }
+            Step::Add { a, b } => add(&before[a * j + d], &before[b * j + d]),
             Step::Conv {
                 src,
                 c_in,
@@ -341,13 +337,10 @@ fn tangent(step: &Step, y: &Col, before: &[Col], dy: &mut [Col], j: usize) {
                 if *relu {
                     mask(&mut t);
                 }
-                if let Some(r) = residual {
-                    let res = &before[r * j + d];
-                    for q in 0..LANES {
-                        t[q] += res[q];
-                    }
+                match residual {
+                    Some(r) => add(&t, &before[r * j + d]),
+                    None => t,
                 }
-                t
             }
             Step::TakeLast { src } => before[src * j + d],
         };
