@@ -153,6 +153,8 @@ fn bad_rows_are_refused_and_counted() {
     assert!(e.contains("holdout_fraction"), "{e}");
     let e = AdaptConfig::from_toml("[adapt]\nwindw_rows = 10\n").unwrap_err();
     assert!(e.contains("windw_rows"), "{e}");
+    let e = AdaptConfig::from_toml("[adapt]\nanchor = -0.5\n").unwrap_err();
+    assert!(e.contains("anchor"), "{e}");
 }
 
 #[test]

@@ -648,6 +648,7 @@ impl Job {
                 early_stop: Some(self.cfg.patience),
                 batch_size: self.cfg.batch_size,
                 lr: self.cfg.lr,
+                anchor: self.cfg.anchor,
                 ..TrainConfig::paper(m.spec.arch, m.direction, l, self.cfg.epochs, seed)
             };
             // First the output re-centred on the new rows (the offset a slack cable adds is

@@ -32,6 +32,11 @@ pub struct AdaptConfig {
     pub lr: f64,
     pub batch_size: usize,
     pub seed: u64,
+    /// Weight λ of the fine-tune's pull λ·‖θ − θ₀‖² towards the weights in use (L2-SP; 0 =
+    /// none): the new rows come from the robot's own closed loop, along the commands the
+    /// compensator sends, and without it a fine-tune is free to change the model everywhere
+    /// else, where the refinement then searches.
+    pub anchor: f64,
     /// Which models are fine-tuned: "forward", "inverse" or both.
     pub directions: Vec<String>,
 }
@@ -52,6 +57,7 @@ impl Default for AdaptConfig {
             lr: 3e-4,
             batch_size: 16,
             seed: 1,
+            anchor: 0.0,
             directions: vec!["forward".into(), "inverse".into()],
         }
     }
@@ -111,6 +117,9 @@ impl AdaptConfig {
         }
         if !(self.lr > 0.0 && self.lr.is_finite()) {
             return Err(format!("[adapt] lr = {}: must be positive", self.lr));
+        }
+        if !(self.anchor >= 0.0 && self.anchor.is_finite()) {
+            return Err(format!("[adapt] anchor = {}: must be ≥ 0", self.anchor));
         }
         if self.directions.is_empty() {
             return Err("[adapt] directions: name forward, inverse or both".into());

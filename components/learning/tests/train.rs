@@ -183,3 +183,60 @@ fn candle_backend_follows_the_same_trajectory() {
         assert!((vf - vc).abs() < 1e-3 * vf, "{arch}: val RMSE {vf} vs {vc}");
     }
 }
+
+/// L2-SP (`TrainConfig::anchor`): a fine-tune on a changed robot's data moves the weights
+/// less the stronger the pull towards the starting ones, and still fits the new data better
+/// than the starting model; the weight must come with starting weights and be ≥ 0.
+#[test]
+fn an_anchored_fine_tune_stays_nearer_its_start() {
+    use bowden_learning::fine_tune;
+    let base = WindowSet::build(
+        &hysteretic_dataset(1500, 3, 3),
+        Direction::Forward,
+        16,
+        SplitConfig::default(),
+        PhySource::Vision,
+    )
+    .unwrap();
+    let start = train(&base, &small_config(Arch::Tcn, 4), None).unwrap().model;
+    // Another unit of the same design: its data under the start's normalisation.
+    let new = WindowSet::build(
+        &hysteretic_dataset(600, 3, 11),
+        Direction::Forward,
+        16,
+        SplitConfig::default(),
+        PhySource::Vision,
+    )
+    .unwrap()
+    .with_normalisers(start.norm_in.clone(), start.norm_out.clone())
+    .unwrap();
+    let dist = |p: &[f32]| -> f64 {
+        p.iter()
+            .zip(&start.params)
+            .map(|(a, b)| ((a - b) as f64).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    };
+    let mut cfg = small_config(Arch::Tcn, 6);
+    cfg.lr = 3e-3;
+    let free = fine_tune(&new, &cfg, &start, None).unwrap();
+    cfg.anchor = 3.0;
+    let anchored = fine_tune(&new, &cfg, &start, None).unwrap();
+    let (d_free, d_anchored) = (dist(&free.model.params), dist(&anchored.model.params));
+    assert!(
+        d_anchored < 0.5 * d_free,
+        "distance from the start: free {d_free:.4}, anchored {d_anchored:.4}"
+    );
+    assert!(
+        anchored.best().val_rmse_deg < anchored.initial_val_rmse_deg,
+        "anchored fine-tune: {} → {}",
+        anchored.initial_val_rmse_deg,
+        anchored.best().val_rmse_deg
+    );
+    cfg.anchor = -1.0;
+    assert!(fine_tune(&new, &cfg, &start, None).is_err());
+    cfg.anchor = f64::NAN;
+    assert!(fine_tune(&new, &cfg, &start, None).is_err());
+    cfg.anchor = 1.0;
+    assert!(train(&new, &cfg, None).is_err(), "an anchor without starting weights");
+}
