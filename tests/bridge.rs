@@ -138,7 +138,13 @@ fn bench_bridge_measures_every_stream_and_frames_arrive_intact() {
     ]);
     let rows: Vec<serde_json::Value> = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let paths: Vec<&str> = rows.iter().map(|r| r["path"].as_str().unwrap()).collect();
-    assert_eq!(rows.len(), 6, "{paths:?}");
+    assert_eq!(rows.len(), 7, "{paths:?}");
+    // The machine's own hop under the network rows: TCP loses nothing.
+    let tcp = rows
+        .iter()
+        .find(|r| r["path"].as_str().unwrap().starts_with("plain TCP"))
+        .unwrap();
+    assert_eq!(tcp["delivered"].as_u64(), Some(60), "{tcp}");
     for r in &rows {
         let (sent, delivered) = (r["sent"].as_u64().unwrap(), r["delivered"].as_u64().unwrap());
         assert_eq!(r["corrupt"].as_u64().unwrap(), 0, "{r}");

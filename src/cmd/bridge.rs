@@ -24,6 +24,14 @@ pub enum BenchCommand {
         #[arg(long, action = clap::ArgAction::Set)]
         low_latency: bool,
     },
+    /// The receiving process of `bench bridge`'s plain TCP hop (started by it).
+    #[command(hide = true)]
+    TcpPeer {
+        #[arg(long)]
+        connect: String,
+        #[arg(long)]
+        count: usize,
+    },
 }
 
 #[derive(Args, Debug)]
@@ -66,6 +74,11 @@ pub fn bench(c: BenchCommand) -> Result<()> {
             low_latency,
         } => {
             let lat = bowden_bridge::bench::raw_zenoh_peer(&connect, count, low_latency).map_err(anyhow::Error::msg)?;
+            println!("{}", serde_json::to_string(&lat)?);
+            return Ok(());
+        }
+        BenchCommand::TcpPeer { connect, count } => {
+            let lat = bowden_bridge::bench::raw_tcp_peer(&connect, count).map_err(anyhow::Error::msg)?;
             println!("{}", serde_json::to_string(&lat)?);
             return Ok(());
         }

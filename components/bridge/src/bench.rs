@@ -368,6 +368,8 @@ pub fn bridge_bench(o: &BridgeBenchOptions, progress: &dyn Fn(&str)) -> Result<V
     }
     progress("Zenoh alone, process to process, at the same rate");
     rows.push(raw_zenoh_row(o, true)?);
+    progress("a plain TCP socket, process to process, at the same rate (the machine's network floor)");
+    rows.push(raw_tcp_row(o)?);
     Ok(rows)
 }
 
@@ -504,6 +506,99 @@ pub fn raw_zenoh_row(o: &BridgeBenchOptions, low_latency: bool) -> Result<HopRow
             "Zenoh alone, process to process ({} transport)",
             if low_latency { "low-latency" } else { "default" }
         ),
+        sent: o.samples as u64,
+        delivered: lat.len() as u64,
+        corrupt: 0,
+        delivered_per_s: 0.0,
+        one_way: h.percentiles(),
+        p50_first_quarter_ns: None,
+        p50_last_quarter_ns: None,
+    })
+}
+
+/// The receiving end of the plain TCP hop (`bowden bench tcp-peer`, started by the bench):
+/// dials `connect` (TCP_NODELAY), prints `ready`, then reads `count` measured 184-byte messages
+/// with blocking reads on this one thread and returns one way = arrival − the sender's
+/// monotonic stamp (the first 8 bytes) of each. One wake-up per message, no runtime between the
+/// socket and the clock read: the least any network hop costs on this machine.
+pub fn raw_tcp_peer(connect: &str, count: usize) -> Result<Vec<u64>, String> {
+    use std::io::Read;
+    let mut s = std::net::TcpStream::connect(connect).map_err(|e| format!("connecting to {connect}: {e}"))?;
+    s.set_nodelay(true).map_err(|e| e.to_string())?;
+    s.set_read_timeout(Some(Duration::from_secs(10)))
+        .map_err(|e| e.to_string())?;
+    println!("ready");
+    let mut out = Vec::with_capacity(count);
+    let mut b = [0u8; 184];
+    while out.len() < count {
+        if s.read_exact(&mut b).is_err() {
+            break;
+        }
+        let now = monotonic_ns();
+        let t = u64::from_le_bytes(b[0..8].try_into().unwrap_or_default());
+        let i = u64::from_le_bytes(b[8..16].try_into().unwrap_or_default());
+        if i < 1 << 40 {
+            out.push(now.saturating_sub(t));
+        }
+    }
+    Ok(out)
+}
+
+/// A plain TCP socket between two processes on loopback (this process writes, a `tcp-peer`
+/// child reads), at the rate of the bridge rows: the floor under every network row, so that a
+/// bridge or Zenoh figure can be read as what it adds to the machine's own hop.
+pub fn raw_tcp_row(o: &BridgeBenchOptions) -> Result<HopRow, String> {
+    use std::io::{BufRead, Write};
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").map_err(|e| format!("binding a loopback port: {e}"))?;
+    let port = listener.local_addr().map_err(|e| e.to_string())?.port();
+    let mut child = std::process::Command::new(&o.exe)
+        .args(["bench", "tcp-peer", "--connect", &format!("127.0.0.1:{port}")])
+        .args(["--count", &o.samples.to_string()])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .map_err(|e| format!("starting the TCP peer: {e}"))?;
+    let stdout = child.stdout.take().ok_or("peer stdout")?;
+    let mut lines = std::io::BufReader::new(stdout).lines();
+    let ready = matches!(lines.next(), Some(Ok(l)) if l.trim() == "ready");
+    let accepted = if ready { listener.accept().ok() } else { None };
+    let Some((mut sock, _)) = accepted else {
+        let _ = child.kill();
+        let _ = child.wait();
+        return Err("the TCP peer did not connect".into());
+    };
+    sock.set_nodelay(true).map_err(|e| e.to_string())?;
+    let mut put = |i: u64| -> Result<(), String> {
+        let mut b = [0u8; 184];
+        b[0..8].copy_from_slice(&monotonic_ns().to_le_bytes());
+        b[8..16].copy_from_slice(&i.to_le_bytes());
+        sock.write_all(&b).map_err(|e| format!("writing to the TCP peer: {e}"))
+    };
+    let period_ns = (1e9 / o.rate_hz) as u64;
+    // Warm-up messages (index ≥ 2^40), not measured: as the Zenoh row's.
+    for w in 0..200u64 {
+        put((1 << 40) + w)?;
+        std::thread::sleep(Duration::from_nanos(period_ns.max(1_000_000)));
+    }
+    let mut next = monotonic_ns() + period_ns;
+    for k in 0..o.samples as u64 {
+        sleep_until_ns(next);
+        put(k)?;
+        next += period_ns;
+    }
+    let rest: Vec<String> = lines.map_while(Result::ok).collect();
+    let status = child.wait().map_err(|e| e.to_string())?;
+    if !status.success() {
+        return Err(format!("TCP peer failed ({status})"));
+    }
+    let lat: Vec<u64> = serde_json::from_str(rest.last().map(|s| s.as_str()).unwrap_or("[]"))
+        .map_err(|e| format!("TCP peer output: {e}"))?;
+    let mut h = LatencyHistogram::new();
+    for &l in &lat {
+        h.record(l);
+    }
+    Ok(HopRow {
+        stream: "184-byte message".into(),
+        path: "plain TCP socket, process to process (blocking read, TCP_NODELAY)".into(),
         sent: o.samples as u64,
         delivered: lat.len() as u64,
         corrupt: 0,

@@ -329,6 +329,66 @@ fn measure(
     }
 }
 
+/// The platform's floor for a step of `length_ns`: a clock spin of exactly that length,
+/// released like the measured rows (paced or back to back) and timed the same way. The
+/// pass-through floor is too short to meet the platform's interruptions (≈ 400/s here) as often
+/// as a step of several µs does; a spin as long as the step meets them exactly as often, so its
+/// p99.9 is the lowest p99.9 any code of that length can show on this machine.
+fn measure_spin(
+    length_ns: u64,
+    warmup: usize,
+    steps: usize,
+    scenario: Scenario,
+    mode: Mode,
+    period: Option<std::time::Duration>,
+    progress: &mut dyn FnMut(u64),
+) -> Latency {
+    let mut h = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3).expect("valid bounds");
+    let length = std::time::Duration::from_nanos(length_ns);
+    let start = std::time::Instant::now();
+    for i in 0..warmup + steps {
+        if let Some(p) = period {
+            let release = start + p * i as u32;
+            let now = std::time::Instant::now();
+            if release > now {
+                std::thread::sleep(release - now);
+            }
+        }
+        let t0 = std::time::Instant::now();
+        while t0.elapsed() < length {
+            std::hint::spin_loop();
+        }
+        let ns = t0.elapsed().as_nanos() as u64;
+        if i >= warmup {
+            h.saturating_record(ns.max(1));
+            progress(1);
+        }
+    }
+    Latency {
+        scenario,
+        mode,
+        evaluator: "spin",
+        paced: period.is_some(),
+        prefix: "none",
+        prepare_split: false,
+        prepare_p50_ns: 0,
+        prepare_p999_ns: 0,
+        prepare_max_ns: 0,
+        steps: h.len(),
+        p50_ns: h.value_at_quantile(0.5),
+        p99_ns: h.value_at_quantile(0.99),
+        p999_ns: h.value_at_quantile(0.999),
+        max_ns: h.max(),
+        mean_ns: h.mean(),
+        mean_forward_evals: 0.0,
+        max_forward_evals: 0,
+        history_change_fraction: 0.0,
+        threshold_fraction: 0.0,
+        lagged_fraction: 0.0,
+        max_prefix_lag: 0,
+    }
+}
+
 fn load(cfg: &ControllerConfig, field: &'static str, dir: Direction) -> Result<(Model, String), CompensatorError> {
     let p = match (field, &cfg.model_fwd, &cfg.model_inv) {
         ("model_fwd", Some(p), _) | ("model_inv", _, Some(p)) => p.clone(),
@@ -358,7 +418,9 @@ fn load(cfg: &ControllerConfig, field: &'static str, dir: Direction) -> Result<(
 
 /// Total steps `run` will report through `progress` (for a progress bar).
 pub fn total_steps(opts: &BenchOptions) -> u64 {
-    (opts.scenarios.len() * ((Mode::ALL.len() + 4) * opts.steps + opts.naive_steps)) as u64
+    // Every mode in step, paper and newton in prepare and on the worker, and a spin as long as
+    // each worker row.
+    (opts.scenarios.len() * ((Mode::ALL.len() + 6) * opts.steps + opts.naive_steps)) as u64
 }
 
 /// Runs every scenario × mode with the incremental evaluator (the prefix in the step; paper
@@ -422,7 +484,14 @@ pub fn run(opts: &BenchOptions, robot: &Robot, progress: &mut dyn FnMut(u64)) ->
             if mode == Mode::Paper && at == PrefixAt::InStep {
                 paper_inc = Some(lat.clone());
             }
+            let matched = (at == PrefixAt::Worker).then_some(lat.p50_ns);
             rows.push(lat);
+            if let Some(length_ns) = matched {
+                drop(comp);
+                rows.push(measure_spin(
+                    length_ns, 1000, opts.steps, scenario, mode, period, progress,
+                ));
+            }
         }
         let mut c = cfg.clone();
         c.mode = Mode::Paper;
@@ -485,6 +554,7 @@ impl BenchReport {
                 match r.prefix {
                     "prepare" => " (prefix in prepare)",
                     "worker" => " (prefix worker)",
+                    "none" if r.evaluator == "spin" => " (platform floor at the row above's p50)",
                     "none" => " (pass-through floor)",
                     _ => "",
                 }
@@ -642,6 +712,36 @@ impl BenchReport {
                 i.mean_ns / 1000.0,
             );
         }
+        let floors: Vec<(&Latency, &Latency, Option<&Latency>)> = self
+            .rows
+            .windows(2)
+            .filter(|w| w[1].evaluator == "spin")
+            .map(|w| {
+                let pass = self
+                    .rows
+                    .iter()
+                    .find(|r| r.scenario == w[0].scenario && r.evaluator == "none");
+                (&w[0], &w[1], pass)
+            })
+            .collect();
+        if !floors.is_empty() {
+            s += "\nAgainst the floors measured in this run (prefix on the worker, as the real-time node runs): the pass-through (no model), and the platform's floor at the step's length (a clock spin as long as the step's p50, released the same way).\n\n";
+            s += "| scenario | mode | step p50 / p99.9 µs | pass-through p99.9 µs | step / pass-through | spin of the step's p50: p99.9 µs | step / spin |\n|---|---|---:|---:|---:|---:|---:|\n";
+            for (step, spin, pass) in floors {
+                let ratio = |a: u64, b: u64| format!("{:.2}×", a as f64 / b.max(1) as f64);
+                s += &format!(
+                    "| {} | {} | {} / {} | {} | {} | {} | {} |\n",
+                    step.scenario.name(),
+                    step.mode,
+                    us(step.p50_ns),
+                    us(step.p999_ns),
+                    pass.map_or("–".into(), |p| us(p.p999_ns)),
+                    pass.map_or("–".into(), |p| ratio(step.p999_ns, p.p999_ns)),
+                    us(spin.p999_ns),
+                    ratio(step.p999_ns, spin.p999_ns),
+                );
+            }
+        }
         s += "\n| scenario | naive tract / incremental (paper mode): p50 | mean | p99.9 |\n|---|---:|---:|---:|\n";
         for r in &self.ratios {
             s += &format!(
@@ -726,6 +826,43 @@ mod tests {
         assert!(svg.starts_with("<svg") && svg.contains("p99.9") && svg.contains("fine · paper · tract"));
         // The legend is a strip above the rows, not a box over them (plotters' box is 0.8 opaque).
         assert!(!svg.contains(r#"opacity="0.8""#), "a legend box over the data");
+
+        // A worker row followed by its matched spin, with the pass-through in the same scenario:
+        // the floors table compares the step's p99.9 with both.
+        let mut pass = row(Mode::Uncalibrated, "none", 500);
+        pass.prefix = "none";
+        let mut worker = row(Mode::Paper, "incremental", 10_000);
+        worker.prefix = "worker";
+        let mut spin = row(Mode::Paper, "spin", 10_000);
+        spin.prefix = "none";
+        spin.p999_ns = 20_000;
+        let r = BenchReport {
+            rows: vec![pass, worker, spin],
+            ..r
+        };
+        let md = r.to_markdown();
+        assert!(
+            md.contains("| fine | paper | 10.00 / 30.00 | 1.50 | 20.00× | 20.00 | 1.50× |"),
+            "{md}"
+        );
+        let p = dir.path().join("floors.svg");
+        r.write_svg(&p).unwrap();
+        assert!(std::fs::read_to_string(&p)
+            .unwrap()
+            .contains("platform floor at the row above"));
+    }
+
+    #[test]
+    fn a_matched_spin_lasts_at_least_its_length() {
+        let mut ticks = 0;
+        let l = measure_spin(20_000, 10, 200, Scenario::DatasetStep, Mode::Newton, None, &mut |n| {
+            ticks += n
+        });
+        assert_eq!((l.steps, ticks, l.evaluator, l.mode), (200, 200, "spin", Mode::Newton));
+        assert!(
+            l.p50_ns >= 20_000 && l.max_ns >= l.p999_ns && l.p999_ns >= l.p50_ns,
+            "{l:?}"
+        );
     }
 
     #[test]
