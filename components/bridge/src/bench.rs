@@ -437,7 +437,6 @@ pub fn raw_zenoh_peer(connect: &str, count: usize, low_latency: bool) -> Result<
 /// Zenoh alone between two processes on loopback (this process publishes, a `bridge-peer`
 /// child receives): what the bridge's network hop costs on this machine without bowden.
 pub fn raw_zenoh_row(o: &BridgeBenchOptions, low_latency: bool) -> Result<HopRow, String> {
-    use std::io::BufRead;
     use zenoh::Wait;
     let port = crate::free_loopback_port().map_err(|e| format!("finding a free port: {e}"))?;
     let p: crate::BridgeParams = toml::from_str(&format!(
@@ -451,61 +450,102 @@ pub fn raw_zenoh_row(o: &BridgeBenchOptions, low_latency: bool) -> Result<HopRow
         .congestion_control(zenoh::qos::CongestionControl::Drop)
         .wait()
         .map_err(|e| e.to_string())?;
+    let args = [
+        "bridge-peer".to_string(),
+        "--connect".into(),
+        format!("tcp/127.0.0.1:{port}"),
+        "--low-latency".into(),
+        low_latency.to_string(),
+    ];
+    let lat = paced_to_peer(
+        o,
+        "raw Zenoh peer",
+        &args,
+        || Ok(()),
+        |_, b| {
+            let _ = publisher.put(b.to_vec()).wait();
+            Ok(())
+        },
+    )?;
+    Ok(peer_row(
+        o,
+        &lat,
+        format!(
+            "Zenoh alone, process to process ({} transport)",
+            if low_latency { "low-latency" } else { "default" }
+        ),
+    ))
+}
+
+/// Starts `bowden bench <args> --count <samples>` (a peer that prints `ready`, then the one-way
+/// latencies of the measured messages as a JSON list), calls `connected` once it is ready (its
+/// result is handed to every `send`),
+/// sends it 200 unmeasured warm-up messages and then `samples` measured ones at `rate_hz`
+/// through `send` (each 184 bytes: the monotonic send time, then the index; warm-ups have
+/// indices ≥ 2^40), and returns what the peer measured.
+fn paced_to_peer<C>(
+    o: &BridgeBenchOptions,
+    who: &str,
+    args: &[String],
+    connected: impl FnOnce() -> Result<C, String>,
+    mut send: impl FnMut(&mut C, &[u8; 184]) -> Result<(), String>,
+) -> Result<Vec<u64>, String> {
+    use std::io::BufRead;
     let mut child = std::process::Command::new(&o.exe)
-        .args(["bench", "bridge-peer", "--connect", &format!("tcp/127.0.0.1:{port}")])
-        .args([
-            "--count",
-            &o.samples.to_string(),
-            "--low-latency",
-            &low_latency.to_string(),
-        ])
+        .arg("bench")
+        .args(args)
+        .args(["--count", &o.samples.to_string()])
         .stdout(std::process::Stdio::piped())
         .spawn()
-        .map_err(|e| format!("starting the raw Zenoh peer: {e}"))?;
+        .map_err(|e| format!("starting the {who}: {e}"))?;
     let stdout = child.stdout.take().ok_or("peer stdout")?;
     let mut lines = std::io::BufReader::new(stdout).lines();
-    match lines.next() {
-        Some(Ok(l)) if l.trim() == "ready" => {}
-        other => {
+    let ready = match lines.next() {
+        Some(Ok(l)) if l.trim() == "ready" => connected(),
+        other => Err(format!("the {who} did not start: {other:?}")),
+    };
+    let mut connection = match ready {
+        Ok(c) => c,
+        Err(e) => {
             let _ = child.kill();
             let _ = child.wait();
-            return Err(format!("raw Zenoh peer did not start: {other:?}"));
+            return Err(e);
         }
-    }
-    let put = |i: u64| {
+    };
+    let mut put = |i: u64| {
         let mut b = [0u8; 184];
         b[0..8].copy_from_slice(&monotonic_ns().to_le_bytes());
         b[8..16].copy_from_slice(&i.to_le_bytes());
-        let _ = publisher.put(b.to_vec()).wait();
+        send(&mut connection, &b)
     };
     let period_ns = (1e9 / o.rate_hz) as u64;
     for w in 0..200u64 {
-        put((1 << 40) + w);
+        put((1 << 40) + w)?;
         std::thread::sleep(Duration::from_nanos(period_ns.max(1_000_000)));
     }
     let mut next = monotonic_ns() + period_ns;
     for k in 0..o.samples as u64 {
         sleep_until_ns(next);
-        put(k);
+        put(k)?;
         next += period_ns;
     }
     let rest: Vec<String> = lines.map_while(Result::ok).collect();
     let status = child.wait().map_err(|e| e.to_string())?;
     if !status.success() {
-        return Err(format!("raw Zenoh peer failed ({status})"));
+        return Err(format!("the {who} failed ({status})"));
     }
-    let lat: Vec<u64> = serde_json::from_str(rest.last().map(|s| s.as_str()).unwrap_or("[]"))
-        .map_err(|e| format!("raw Zenoh peer output: {e}"))?;
+    serde_json::from_str(rest.last().map(|s| s.as_str()).unwrap_or("[]")).map_err(|e| format!("{who} output: {e}"))
+}
+
+/// The row of a peer's one-way latencies.
+fn peer_row(o: &BridgeBenchOptions, lat: &[u64], path: String) -> HopRow {
     let mut h = LatencyHistogram::new();
-    for &l in &lat {
+    for &l in lat {
         h.record(l);
     }
-    Ok(HopRow {
+    HopRow {
         stream: "184-byte message".into(),
-        path: format!(
-            "Zenoh alone, process to process ({} transport)",
-            if low_latency { "low-latency" } else { "default" }
-        ),
+        path,
         sent: o.samples as u64,
         delivered: lat.len() as u64,
         corrupt: 0,
@@ -513,7 +553,7 @@ pub fn raw_zenoh_row(o: &BridgeBenchOptions, low_latency: bool) -> Result<HopRow
         one_way: h.percentiles(),
         p50_first_quarter_ns: None,
         p50_last_quarter_ns: None,
-    })
+    }
 }
 
 /// The receiving end of the plain TCP hop (`bowden bench tcp-peer`, started by the bench):
@@ -548,63 +588,23 @@ pub fn raw_tcp_peer(connect: &str, count: usize) -> Result<Vec<u64>, String> {
 /// child reads), at the rate of the bridge rows: the floor under every network row, so that a
 /// bridge or Zenoh figure can be read as what it adds to the machine's own hop.
 pub fn raw_tcp_row(o: &BridgeBenchOptions) -> Result<HopRow, String> {
-    use std::io::{BufRead, Write};
+    use std::io::Write;
     let listener = std::net::TcpListener::bind("127.0.0.1:0").map_err(|e| format!("binding a loopback port: {e}"))?;
     let port = listener.local_addr().map_err(|e| e.to_string())?.port();
-    let mut child = std::process::Command::new(&o.exe)
-        .args(["bench", "tcp-peer", "--connect", &format!("127.0.0.1:{port}")])
-        .args(["--count", &o.samples.to_string()])
-        .stdout(std::process::Stdio::piped())
-        .spawn()
-        .map_err(|e| format!("starting the TCP peer: {e}"))?;
-    let stdout = child.stdout.take().ok_or("peer stdout")?;
-    let mut lines = std::io::BufReader::new(stdout).lines();
-    let ready = matches!(lines.next(), Some(Ok(l)) if l.trim() == "ready");
-    let accepted = if ready { listener.accept().ok() } else { None };
-    let Some((mut sock, _)) = accepted else {
-        let _ = child.kill();
-        let _ = child.wait();
-        return Err("the TCP peer did not connect".into());
+    let args = ["tcp-peer".to_string(), "--connect".into(), format!("127.0.0.1:{port}")];
+    let connect = || {
+        let (s, _) = listener
+            .accept()
+            .map_err(|e| format!("the TCP peer did not connect: {e}"))?;
+        s.set_nodelay(true).map_err(|e| e.to_string())?;
+        Ok(s)
     };
-    sock.set_nodelay(true).map_err(|e| e.to_string())?;
-    let mut put = |i: u64| -> Result<(), String> {
-        let mut b = [0u8; 184];
-        b[0..8].copy_from_slice(&monotonic_ns().to_le_bytes());
-        b[8..16].copy_from_slice(&i.to_le_bytes());
-        sock.write_all(&b).map_err(|e| format!("writing to the TCP peer: {e}"))
-    };
-    let period_ns = (1e9 / o.rate_hz) as u64;
-    // Warm-up messages (index ≥ 2^40), not measured: as the Zenoh row's.
-    for w in 0..200u64 {
-        put((1 << 40) + w)?;
-        std::thread::sleep(Duration::from_nanos(period_ns.max(1_000_000)));
-    }
-    let mut next = monotonic_ns() + period_ns;
-    for k in 0..o.samples as u64 {
-        sleep_until_ns(next);
-        put(k)?;
-        next += period_ns;
-    }
-    let rest: Vec<String> = lines.map_while(Result::ok).collect();
-    let status = child.wait().map_err(|e| e.to_string())?;
-    if !status.success() {
-        return Err(format!("TCP peer failed ({status})"));
-    }
-    let lat: Vec<u64> = serde_json::from_str(rest.last().map(|s| s.as_str()).unwrap_or("[]"))
-        .map_err(|e| format!("TCP peer output: {e}"))?;
-    let mut h = LatencyHistogram::new();
-    for &l in &lat {
-        h.record(l);
-    }
-    Ok(HopRow {
-        stream: "184-byte message".into(),
-        path: "plain TCP socket, process to process (blocking read, TCP_NODELAY)".into(),
-        sent: o.samples as u64,
-        delivered: lat.len() as u64,
-        corrupt: 0,
-        delivered_per_s: 0.0,
-        one_way: h.percentiles(),
-        p50_first_quarter_ns: None,
-        p50_last_quarter_ns: None,
-    })
+    let lat = paced_to_peer(o, "TCP peer", &args, connect, |s, b| {
+        s.write_all(b).map_err(|e| format!("writing to the TCP peer: {e}"))
+    })?;
+    Ok(peer_row(
+        o,
+        &lat,
+        "plain TCP socket, process to process (blocking read, TCP_NODELAY)".into(),
+    ))
 }
