@@ -334,6 +334,13 @@ impl ControllerConfig {
         if !(n.prior_weight.is_finite() && n.prior_weight >= 0.0) {
             return bad("newton.prior_weight", n.prior_weight.to_string(), "must be ≥ 0");
         }
+        if !(n.step_tolerance_deg.is_finite() && n.step_tolerance_deg >= 0.0) {
+            return bad(
+                "newton.step_tolerance_deg",
+                n.step_tolerance_deg.to_string(),
+                "must be ≥ 0",
+            );
+        }
         if !(n.damping_increase.is_finite() && n.damping_increase > 1.0) {
             return bad("newton.damping_increase", n.damping_increase.to_string(), "must be > 1");
         }

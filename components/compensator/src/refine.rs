@@ -39,7 +39,8 @@ pub enum StopReason {
     /// No refinement ran (uncalibrated mode).
     #[default]
     None = 0,
-    /// Every joint's |loss| is within the threshold (paper: Thr; newton: tolerance).
+    /// Every joint's |loss| is within the threshold (paper: Thr; newton: tolerance), or newton's
+    /// last accepted step was within its step tolerance.
     Threshold = 1,
     /// M iterations done.
     MaxIterations = 2,
@@ -121,6 +122,13 @@ pub struct NewtonParams {
     /// is wrong. 0 = plain Gauss–Newton.
     #[serde(default)]
     pub prior_weight: f64,
+    /// Stop when an accepted step moved no joint by more than this, degrees (0 = off). With a
+    /// prior the loss seldom reaches `tolerance_deg` (the optimum balances the model's residual
+    /// against the prior), so without it every step runs all `max_evals`, the last ones by
+    /// ever smaller steps: the usual step-size test of Levenberg–Marquardt (Madsen, Nielsen &
+    /// Tingleff 2004, §3.2).
+    #[serde(default)]
+    pub step_tolerance_deg: f64,
 }
 
 impl Default for NewtonParams {
@@ -137,6 +145,7 @@ impl Default for NewtonParams {
             fallback_step: 0.5,
             init_from_inverse: true,
             prior_weight: 0.0,
+            step_tolerance_deg: 0.0,
         }
     }
 }
@@ -410,6 +419,10 @@ pub fn newton_refine<M: WindowModel + ?Sized>(
         // A fallback step is taken when it does not make things worse: in a flat (dead) region
         // the loss stays put until the model responds again.
         if cost_new.is_finite() && (cost_new < cost || (used_fallback && cost_new <= cost)) {
+            let moved = q
+                .iter()
+                .zip(q_new.iter())
+                .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
             q.copy_from_slice(q_new);
             pred.copy_from_slice(pred_new);
             jac.copy_from_slice(jac_new);
@@ -419,6 +432,10 @@ pub fn newton_refine<M: WindowModel + ?Sized>(
             cost = cost_new;
             r.loss_max_abs_deg = max_abs(res);
             lambda = (lambda * p.damping_decrease).max(p.damping_min);
+            if p.step_tolerance_deg > 0.0 && moved <= p.step_tolerance_deg {
+                r.stop = StopReason::Threshold;
+                return r;
+            }
         } else if used_fallback {
             beta *= 0.5;
             lambda *= p.damping_increase;
@@ -661,6 +678,38 @@ mod tests {
         fn eval_jacobian(&mut self, last: &[f64], out: &mut [f64], jac: &mut [f64]) {
             self.eval(last, out);
             jac[0] = if last[0] > 0.0 { 1.0 } else { 0.0 };
+        }
+    }
+
+    /// With a prior the residual never reaches the tolerance: without a step tolerance every
+    /// call runs all its evaluations; with one it stops once the steps are that small, at a
+    /// point within about that distance of where the full run ends.
+    #[test]
+    fn a_step_tolerance_ends_a_converged_prior_run_early() {
+        let d = [10.0, -5.0, 0.3];
+        let run = |step_tolerance_deg: f64| {
+            let mut toy = Toy::new(3, 2);
+            toy.set_history(&[1.0, 2.0, 3.0]);
+            let (mut q, mut pred) = ([0.0; 3], [0.0; 3]);
+            let p = NewtonParams {
+                max_evals: 40,
+                prior_weight: 1.0,
+                damping_init: 1.0,
+                step_tolerance_deg,
+                ..Default::default()
+            };
+            let r = newton_refine(&mut toy, &d, &mut q, &p, &mut pred, &mut |_| {}, &mut || false);
+            (r, q)
+        };
+        let (full, q_full) = run(0.0);
+        // The linear toy's optimum is reached exactly; the full run then spends its remaining
+        // evaluations on rejected steps until the damping gives up.
+        assert_eq!(full.stop, StopReason::Stalled, "{full:?}");
+        let (short, q_short) = run(1e-3);
+        assert_eq!(short.stop, StopReason::Threshold, "{short:?}");
+        assert!(short.evals * 2 < full.evals, "{short:?} vs {full:?}");
+        for c in 0..3 {
+            assert!((q_short[c] - q_full[c]).abs() < 1e-2, "{q_short:?} vs {q_full:?}");
         }
     }
 

@@ -355,3 +355,21 @@ fn compensator_can_move_to_a_realtime_thread() {
     assert_send::<Compensator>();
     assert_send::<StepOutput>();
 }
+
+#[test]
+fn newton_step_tolerance_is_validated_and_off_by_default() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let shipped = std::fs::read_to_string(root.join("configs/controller-accurate.toml")).unwrap();
+    let c = ControllerConfig::parse(&shipped, std::path::Path::new("a.toml")).unwrap();
+    assert_eq!(
+        c.newton.step_tolerance_deg, 0.0,
+        "absent = off: the shipped results stand"
+    );
+    let with = |v: &str| shipped.replace("[newton]\n", &format!("[newton]\nstep_tolerance_deg = {v}\n"));
+    let c = ControllerConfig::parse(&with("0.001"), std::path::Path::new("b.toml")).unwrap();
+    assert_eq!(c.newton.step_tolerance_deg, 0.001);
+    let e = ControllerConfig::parse(&with("-0.5"), std::path::Path::new("c.toml"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("c.toml") && e.contains("newton.step_tolerance_deg"), "{e}");
+}
