@@ -91,6 +91,10 @@ impl Default for PaperParams {
     }
 }
 
+fn is_off(v: &f64) -> bool {
+    *v == 0.0
+}
+
 /// Levenberg–Marquardt parameters.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
@@ -126,8 +130,9 @@ pub struct NewtonParams {
     /// prior the loss seldom reaches `tolerance_deg` (the optimum balances the model's residual
     /// against the prior), so without it every step runs all `max_evals`, the last ones by
     /// ever smaller steps: the usual step-size test of Levenberg–Marquardt (Madsen, Nielsen &
-    /// Tingleff 2004, §3.2).
-    #[serde(default)]
+    /// Tingleff 2004, §3.2). Absent = 0, and 0 is not written (configs and reports read and
+    /// write as before it existed).
+    #[serde(default, skip_serializing_if = "is_off")]
     pub step_tolerance_deg: f64,
 }
 

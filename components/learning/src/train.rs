@@ -64,7 +64,13 @@ pub struct TrainConfig {
     /// (L2-SP, Li, Grandvalet & Davoine 2018), added to the loss (mean squared error in
     /// normalised units). 0 = none. A few new windows then move the weights only as far as
     /// they must, instead of pulling a model trained on many thousands away from what it knew.
+    /// Absent = 0, and 0 is not written, so reports read and write as before it existed.
+    #[serde(default, skip_serializing_if = "is_zero")]
     pub anchor: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 impl TrainConfig {
