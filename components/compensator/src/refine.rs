@@ -686,9 +686,9 @@ mod tests {
         }
     }
 
-    /// With a prior the residual never reaches the tolerance: without a step tolerance every
-    /// call runs all its evaluations; with one it stops once the steps are that small, at a
-    /// point within about that distance of where the full run ends.
+    /// With a prior the residual never reaches the tolerance: without a step tolerance a call
+    /// goes on until its damping gives up; with one it stops once the steps are that small, at
+    /// a point within about that distance of where the full run ends.
     #[test]
     fn a_step_tolerance_ends_a_converged_prior_run_early() {
         let d = [10.0, -5.0, 0.3];
