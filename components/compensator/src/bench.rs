@@ -116,6 +116,43 @@ pub struct Latency {
     pub max_prefix_lag: u32,
 }
 
+impl Latency {
+    /// A row with the percentiles of `h` and nothing else measured (no prepare split, no model
+    /// evaluations, no history changes).
+    fn of(
+        h: &Histogram<u64>,
+        scenario: Scenario,
+        mode: Mode,
+        evaluator: &'static str,
+        paced: bool,
+        prefix: &'static str,
+    ) -> Self {
+        Latency {
+            scenario,
+            mode,
+            evaluator,
+            paced,
+            prefix,
+            prepare_split: false,
+            prepare_p50_ns: 0,
+            prepare_p999_ns: 0,
+            prepare_max_ns: 0,
+            steps: h.len(),
+            p50_ns: h.value_at_quantile(0.5),
+            p99_ns: h.value_at_quantile(0.99),
+            p999_ns: h.value_at_quantile(0.999),
+            max_ns: h.max(),
+            mean_ns: h.mean(),
+            mean_forward_evals: 0.0,
+            max_forward_evals: 0,
+            history_change_fraction: 0.0,
+            threshold_fraction: 0.0,
+            lagged_fraction: 0.0,
+            max_prefix_lag: 0,
+        }
+    }
+}
+
 /// Naive / incremental, paper mode, same scenario.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct Ratio {
@@ -243,6 +280,23 @@ enum PrefixAt {
     Worker,
 }
 
+/// Sleeps to step `i`'s release time, as a periodic loop does (never measured); back to back
+/// without a period. The step rows and their spin rows are released by this one function.
+fn sleep_to_release(start: std::time::Instant, period: Option<std::time::Duration>, i: usize) {
+    if let Some(p) = period {
+        let release = start + p * i as u32;
+        let now = std::time::Instant::now();
+        if release > now {
+            std::thread::sleep(release - now);
+        }
+    }
+}
+
+/// 1 ns … 60 s at 3 significant digits.
+fn histogram() -> Histogram<u64> {
+    Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3).expect("valid bounds")
+}
+
 #[allow(clippy::too_many_arguments)]
 fn measure(
     comp: &mut Compensator,
@@ -256,22 +310,14 @@ fn measure(
     progress: &mut dyn FnMut(u64),
 ) -> Latency {
     let split = at == PrefixAt::Prepare;
-    let mut h = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3).expect("valid bounds");
-    let mut hp = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3).expect("valid bounds");
+    let (mut h, mut hp) = (histogram(), histogram());
     let mut out = StepOutput::default();
     let (mut evals, mut max_evals, mut changes, mut thr) = (0u64, 0u32, 0u64, 0u64);
     let (mut lagged, mut max_lag) = (0u64, 0u32);
     comp.reset();
     let start = std::time::Instant::now();
     for i in 0..warmup + steps {
-        if let Some(p) = period {
-            // Sleep to the step's release time, as a periodic loop does (never measured).
-            let release = start + p * i as u32;
-            let now = std::time::Instant::now();
-            if release > now {
-                std::thread::sleep(release - now);
-            }
-        }
+        sleep_to_release(start, period, i);
         let t = &targets[i % targets.len()];
         // Targets come from the generator: always valid.
         let _ = comp.step(t, &mut out);
@@ -299,33 +345,24 @@ fn measure(
         }
     }
     let n = steps.max(1) as f64;
+    let prefix = match (evaluator, at) {
+        ("none", _) => "none",
+        (_, PrefixAt::InStep) => "in step",
+        (_, PrefixAt::Prepare) => "prepare",
+        (_, PrefixAt::Worker) => "worker",
+    };
     Latency {
-        scenario,
-        mode: comp.mode(),
-        evaluator,
-        paced: period.is_some(),
-        prefix: match (evaluator, at) {
-            ("none", _) => "none",
-            (_, PrefixAt::InStep) => "in step",
-            (_, PrefixAt::Prepare) => "prepare",
-            (_, PrefixAt::Worker) => "worker",
-        },
         prepare_split: split,
         prepare_p50_ns: if split { hp.value_at_quantile(0.5) } else { 0 },
         prepare_p999_ns: if split { hp.value_at_quantile(0.999) } else { 0 },
         prepare_max_ns: if split { hp.max() } else { 0 },
-        steps: h.len(),
-        p50_ns: h.value_at_quantile(0.5),
-        p99_ns: h.value_at_quantile(0.99),
-        p999_ns: h.value_at_quantile(0.999),
-        max_ns: h.max(),
-        mean_ns: h.mean(),
         mean_forward_evals: evals as f64 / n,
         max_forward_evals: max_evals,
         history_change_fraction: changes as f64 / n,
         threshold_fraction: thr as f64 / n,
         lagged_fraction: lagged as f64 / n,
         max_prefix_lag: max_lag,
+        ..Latency::of(&h, scenario, comp.mode(), evaluator, period.is_some(), prefix)
     }
 }
 
@@ -343,17 +380,11 @@ fn measure_spin(
     period: Option<std::time::Duration>,
     progress: &mut dyn FnMut(u64),
 ) -> Latency {
-    let mut h = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3).expect("valid bounds");
+    let mut h = histogram();
     let length = std::time::Duration::from_nanos(length_ns);
     let start = std::time::Instant::now();
     for i in 0..warmup + steps {
-        if let Some(p) = period {
-            let release = start + p * i as u32;
-            let now = std::time::Instant::now();
-            if release > now {
-                std::thread::sleep(release - now);
-            }
-        }
+        sleep_to_release(start, period, i);
         let t0 = std::time::Instant::now();
         while t0.elapsed() < length {
             std::hint::spin_loop();
@@ -364,29 +395,7 @@ fn measure_spin(
             progress(1);
         }
     }
-    Latency {
-        scenario,
-        mode,
-        evaluator: "spin",
-        paced: period.is_some(),
-        prefix: "none",
-        prepare_split: false,
-        prepare_p50_ns: 0,
-        prepare_p999_ns: 0,
-        prepare_max_ns: 0,
-        steps: h.len(),
-        p50_ns: h.value_at_quantile(0.5),
-        p99_ns: h.value_at_quantile(0.99),
-        p999_ns: h.value_at_quantile(0.999),
-        max_ns: h.max(),
-        mean_ns: h.mean(),
-        mean_forward_evals: 0.0,
-        max_forward_evals: 0,
-        history_change_fraction: 0.0,
-        threshold_fraction: 0.0,
-        lagged_fraction: 0.0,
-        max_prefix_lag: 0,
-    }
+    Latency::of(&h, scenario, mode, "spin", period.is_some(), "none")
 }
 
 fn load(cfg: &ControllerConfig, field: &'static str, dir: Direction) -> Result<(Model, String), CompensatorError> {

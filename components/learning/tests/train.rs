@@ -190,26 +190,23 @@ fn candle_backend_follows_the_same_trajectory() {
 #[test]
 fn an_anchored_fine_tune_stays_nearer_its_start() {
     use bowden_learning::fine_tune;
-    let base = WindowSet::build(
-        &hysteretic_dataset(1500, 3, 3),
-        Direction::Forward,
-        16,
-        SplitConfig::default(),
-        PhySource::Vision,
-    )
-    .unwrap();
-    let start = train(&base, &small_config(Arch::Tcn, 4), None).unwrap().model;
+    let windows = |n: usize, seed: u64| {
+        WindowSet::build(
+            &hysteretic_dataset(n, 3, seed),
+            Direction::Forward,
+            16,
+            SplitConfig::default(),
+            PhySource::Vision,
+        )
+        .unwrap()
+    };
+    let start = train(&windows(1500, 3), &small_config(Arch::Tcn, 4), None)
+        .unwrap()
+        .model;
     // Another unit of the same design: its data under the start's normalisation.
-    let new = WindowSet::build(
-        &hysteretic_dataset(600, 3, 11),
-        Direction::Forward,
-        16,
-        SplitConfig::default(),
-        PhySource::Vision,
-    )
-    .unwrap()
-    .with_normalisers(start.norm_in.clone(), start.norm_out.clone())
-    .unwrap();
+    let new = windows(600, 11)
+        .with_normalisers(start.norm_in.clone(), start.norm_out.clone())
+        .unwrap();
     let dist = |p: &[f32]| -> f64 {
         p.iter()
             .zip(&start.params)
