@@ -57,6 +57,9 @@ fn main() -> std::process::ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    // Before any thread and any Zenoh call: the bridge's network runtime layout (the user's
+    // ZENOH_RUNTIME wins).
+    bowden_bridge::use_bowden_zenoh_runtime();
     let cli = Cli::parse_from(legacy_json_file(std::env::args_os().collect()));
     let result = match cli.command {
         Command::Kinematics(c) => cmd::kin::run(c),

@@ -112,7 +112,7 @@ fn a_bridge_in_lockstep_is_refused_clearly() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
-        err.contains("node[0] (bridge).kind") && err.contains("lockstep cannot span it"),
+        err.contains("node[2] (bridge).kind") && err.contains("lockstep cannot span it"),
         "{err}"
     );
     assert_clean(&p);
@@ -138,7 +138,12 @@ fn bench_bridge_measures_every_stream_and_frames_arrive_intact() {
     ]);
     let rows: Vec<serde_json::Value> = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let paths: Vec<&str> = rows.iter().map(|r| r["path"].as_str().unwrap()).collect();
-    assert_eq!(rows.len(), 7, "{paths:?}");
+    assert_eq!(rows.len(), 8, "{paths:?}");
+    // The export in the producer's process: the importing bridge alone delivers.
+    assert!(
+        paths.iter().any(|p| p.starts_with("bridge, import side only")),
+        "{paths:?}"
+    );
     // The machine's own hop under the network rows: TCP loses nothing.
     let tcp = rows
         .iter()
@@ -166,4 +171,97 @@ fn bench_bridge_measures_every_stream_and_frames_arrive_intact() {
         .file_name()
         .to_string_lossy()
         .starts_with("bwbr")));
+}
+
+/// The names of a process's threads (Zenoh names its runtime threads `<runtime>-<n>`).
+fn thread_names(pid: u32) -> Vec<String> {
+    let Ok(dir) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
+        return Vec::new();
+    };
+    dir.filter_map(|t| std::fs::read_to_string(t.ok()?.path().join("comm")).ok())
+        .map(|s| s.trim().to_string())
+        .collect()
+}
+
+/// The Zenoh runtime threads of a `bowden bench bridge-peer` started with `zenoh_runtime` as
+/// its ZENOH_RUNTIME (None: unset), once its session is open (it then waits for a peer that
+/// never comes, and is killed).
+fn zenoh_threads_of_a_bridge_process(zenoh_runtime: Option<&str>) -> Vec<String> {
+    let port = bowden_bridge::free_loopback_port().unwrap();
+    let mut cmd = bowden();
+    cmd.args(["bench", "bridge-peer", "--connect"])
+        .arg(format!("tcp/127.0.0.1:{port}"))
+        .args(["--count", "1", "--low-latency", "true"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null());
+    match zenoh_runtime {
+        Some(v) => cmd.env("ZENOH_RUNTIME", v),
+        None => cmd.env_remove("ZENOH_RUNTIME"),
+    };
+    let mut child = cmd.spawn().unwrap();
+    let is_zenoh = |n: &String| ["app-", "acc-", "tx-", "rx-", "net-"].iter().any(|p| n.starts_with(p));
+    let t0 = std::time::Instant::now();
+    let mut names = Vec::new();
+    // The session is open once Zenoh's threads exist; give the rest of start-up a moment.
+    while t0.elapsed() < std::time::Duration::from_secs(15) {
+        names = thread_names(child.id());
+        if names.iter().any(is_zenoh) {
+            std::thread::sleep(std::time::Duration::from_millis(300));
+            names = thread_names(child.id());
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    let mut z: Vec<String> = names.into_iter().filter(is_zenoh).collect();
+    z.sort();
+    z
+}
+
+#[test]
+fn bowden_runs_zenoh_on_one_runtime_unless_the_user_says_otherwise() {
+    // Unset: every Zenoh runtime handed over to one single-worker runtime (one reactor, so a
+    // socket's reader is woken once, not twice).
+    let ours = zenoh_threads_of_a_bridge_process(None);
+    assert!(!ours.is_empty(), "no Zenoh threads seen");
+    assert!(
+        ours.iter().all(|n| n.starts_with("app-")),
+        "bowden's layout runs everything on the app runtime: {ours:?}"
+    );
+    // The user's setting wins: Zenoh's own default ("()") starts runtimes of its own beside
+    // app (net at once; rx, tx once a link is up).
+    let theirs = zenoh_threads_of_a_bridge_process(Some("()"));
+    assert!(
+        theirs.iter().any(|n| !n.starts_with("app-")),
+        "Zenoh's default layout has threads of other runtimes: {theirs:?}"
+    );
+}
+
+#[test]
+fn an_invalid_zenoh_runtime_is_an_error_naming_it_not_a_crash() {
+    // Zenoh panics when it parses a ZENOH_RUNTIME it cannot read; the bridge stage turns that
+    // into its build error, naming the variable and its value.
+    let (p, _g) = guarded_prefix("brZ");
+    let dir = tempfile::tempdir().unwrap();
+    let port = bowden_bridge::free_loopback_port().unwrap();
+    let cfg = write_config(
+        dir.path(),
+        "bridge.toml",
+        &format!(
+            "[runtime]\nmode = \"realtime\"\nperiod_us = 1000\n\n[[node]]\nname = \"bridge\"\n\
+             [node.params]\nlisten = [\"tcp/127.0.0.1:{port}\"]\nexport = [\"bowden/joint_estimate\"]\n"
+        ),
+    );
+    let out = bowden()
+        .args(["run", cfg.to_str().unwrap(), "--prefix", &p, "--seconds", "1"])
+        .env("ZENOH_RUNTIME", "not ron")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("is ZENOH_RUNTIME valid?") && err.contains("`not ron`"),
+        "{err}"
+    );
 }

@@ -11,8 +11,10 @@ use std::path::PathBuf;
 pub enum BenchCommand {
     /// One hop over the Zenoh bridge on loopback (two bridge processes, two iceoryx2 prefixes):
     /// JointEstimate over a low-latency and a frame-capable link, and checksummed 640x480 RGBD
-    /// frames at the camera's rate; beside the plain iceoryx2 hop to another process, in the
-    /// same run, and Zenoh alone between two processes. p50/p99/p99.9/max one way.
+    /// frames at the camera's rate; JointEstimate with the export in the producer's process
+    /// (only the importing bridge apart); beside the plain iceoryx2 hop to another process, in
+    /// the same run, Zenoh alone and a plain TCP socket between two processes.
+    /// p50/p99/p99.9/max one way.
     Bridge(BridgeArgs),
     /// The receiving process of `bench bridge`'s raw Zenoh hop (started by it).
     #[command(hide = true)]
@@ -127,10 +129,15 @@ pub fn bench(c: BenchCommand) -> Result<()> {
 
 fn table(rows: &[HopRow], a: &BridgeArgs) -> String {
     let mut s = format!(
-        "bench bridge: loopback, {} JointEstimate at {} Hz per link, {} frames at {} fps\n\n\
+        "bench bridge: loopback, {} JointEstimate at {} Hz per link, {} frames at {} fps; \
+         Zenoh runtime: {}\n\n\
          | stream | path | sent | delivered | corrupt | rate /s | p50 | p99 | p99.9 | max | p50 first/last quarter |\n\
          |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|\n",
-        a.samples, a.rate_hz, a.frames, a.fps
+        a.samples,
+        a.rate_hz,
+        a.frames,
+        a.fps,
+        bowden_bridge::zenoh_runtime_in_effect()
     );
     for r in rows {
         let q = match (r.p50_first_quarter_ns, r.p50_last_quarter_ns) {

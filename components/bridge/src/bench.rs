@@ -10,13 +10,13 @@
 //! index; the receiver regenerates it and compares FNV-1a hashes, so a frame counts as
 //! delivered only when it arrived intact.
 
-use bowden_interfaces::{fnv1a64, services, JointEstimate, RgbdFrameHeader};
+use bowden_interfaces::{fnv1a64, services, JointEstimate, RgbdFrameHeader, SampleHeader};
 use bowden_runtime::launch::LaunchOptions;
 use bowden_runtime::ports::{IpcSettings, PortContext};
 use bowden_runtime::session::{RealtimeSession, SessionOptions};
 use bowden_runtime::stats::{LatencyHistogram, Percentiles};
 use bowden_runtime::sys::{monotonic_ns, sleep_until_ns};
-use bowden_runtime::{Overrides, PipelineConfig};
+use bowden_runtime::{Message, Overrides, PipelineConfig};
 use serde::Serialize;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -98,9 +98,33 @@ struct Link {
 }
 
 impl Link {
+    /// Both bridges, sender side on `a_`, receiver side on `b_`.
     fn start(o: &BridgeBenchOptions, prefix: &str, services_list: &str, low_latency: bool) -> Result<Link, String> {
-        let exe = &o.exe;
         let port = crate::free_loopback_port().map_err(|e| format!("finding a free port: {e}"))?;
+        Self::start_sides(o, prefix, services_list, low_latency, port, true)
+    }
+
+    /// Only the importing bridge (on `b_`), dialling `port` where the caller's own Zenoh
+    /// session listens: the export then happens in the producer's process.
+    fn start_import_only(
+        o: &BridgeBenchOptions,
+        prefix: &str,
+        services_list: &str,
+        low_latency: bool,
+        port: u16,
+    ) -> Result<Link, String> {
+        Self::start_sides(o, prefix, services_list, low_latency, port, false)
+    }
+
+    fn start_sides(
+        o: &BridgeBenchOptions,
+        prefix: &str,
+        services_list: &str,
+        low_latency: bool,
+        port: u16,
+        export_side: bool,
+    ) -> Result<Link, String> {
+        let exe = &o.exe;
         let prefixes = [format!("{prefix}a_"), format!("{prefix}b_")];
         let dir = tempfile::tempdir().map_err(|e| format!("temporary directory: {e}"))?;
         let ll = format!("low_latency = {low_latency}");
@@ -120,7 +144,8 @@ impl Link {
             prefixes,
             _dir: dir,
         };
-        for cfg in [&a, &b] {
+        let sides = if export_side { vec![&a, &b] } else { vec![&b] };
+        for cfg in sides {
             let mut o = SessionOptions::new(LaunchOptions::with_exe(exe.clone()));
             o.launch.quiet_children = true;
             link.sessions.push(Some(
@@ -217,20 +242,10 @@ fn receiver(prefix: String, frames: bool, stop: Arc<AtomicBool>, ready: Arc<Atom
     Ok(out)
 }
 
-/// Sends `count` items at `rate_hz` on `prefix` (after a warm-up that waits for the first
-/// arrival), while a receiver thread listens on the other prefix; returns the row.
+/// Sends `count` items at `rate_hz` on the link's first prefix (after a warm-up that waits for
+/// the first arrival), while a receiver thread listens on the other prefix; returns the row.
 fn stream(link: &Link, frames: bool, count: usize, rate_hz: f64, stream: &str, path: &str) -> Result<HopRow, String> {
-    let stop = Arc::new(AtomicBool::new(false));
-    let ready = Arc::new(AtomicBool::new(false));
-    let rx = {
-        let (p, s, r) = (link.prefixes[1].clone(), stop.clone(), ready.clone());
-        std::thread::spawn(move || receiver(p, frames, s, r))
-    };
-    while !ready.load(Ordering::Acquire) && !rx.is_finished() {
-        std::thread::sleep(Duration::from_millis(1));
-    }
     let ctx = PortContext::new("bench-tx", &settings(&link.prefixes[0])).map_err(|e| e.to_string())?;
-    let period_ns = (1e9 / rate_hz) as u64;
     let mut est_out = None;
     let mut frame_out = None;
     let wake = ctx
@@ -253,8 +268,7 @@ fn stream(link: &Link, frames: bool, count: usize, rate_hz: f64, stream: &str, p
         est_out = Some(o);
     }
     let mut payload = vec![0u8; RgbdFrameHeader::payload_len_for(640, 480)];
-    // Warm-up (index ≥ 1<<40, not measured): until the link carries data end to end.
-    let mut send = |index: u64| -> Result<(), String> {
+    let send = |index: u64| -> Result<(), String> {
         if let Some(o) = est_out.as_mut() {
             let e = JointEstimate {
                 n_joints: 5,
@@ -277,6 +291,31 @@ fn stream(link: &Link, frames: bool, count: usize, rate_hz: f64, stream: &str, p
         wake.notify().map_err(|e| e.to_string())?;
         Ok(())
     };
+    paced_stream(&link.prefixes[1], frames, count, rate_hz, stream, path, send)
+}
+
+/// Receives on `rx_prefix` while `send(index)` is called `count` times at `rate_hz` (after a
+/// warm-up of unmeasured indices ≥ 2^40 that lets the link carry data end to end); returns
+/// the row of what arrived.
+fn paced_stream(
+    rx_prefix: &str,
+    frames: bool,
+    count: usize,
+    rate_hz: f64,
+    stream: &str,
+    path: &str,
+    mut send: impl FnMut(u64) -> Result<(), String>,
+) -> Result<HopRow, String> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let ready = Arc::new(AtomicBool::new(false));
+    let rx = {
+        let (p, s, r) = (rx_prefix.to_string(), stop.clone(), ready.clone());
+        std::thread::spawn(move || receiver(p, frames, s, r))
+    };
+    while !ready.load(Ordering::Acquire) && !rx.is_finished() {
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let period_ns = (1e9 / rate_hz) as u64;
     let t_warm = monotonic_ns();
     let mut w = 0u64;
     // The receiver counts warm-up arrivals too; they are filtered by index below.
@@ -366,11 +405,70 @@ pub fn bridge_bench(o: &BridgeBenchOptions, progress: &dyn Fn(&str)) -> Result<V
             rows.push(stream(&link, frames, count, rate, what, &path)?);
         }
     }
+    progress("JointEstimate with the export in the producer's process (only the importing bridge runs apart)");
+    rows.push(export_in_producer_row(o)?);
     progress("Zenoh alone, process to process, at the same rate");
     rows.push(raw_zenoh_row(o, true)?);
     progress("a plain TCP socket, process to process, at the same rate (the machine's network floor)");
     rows.push(raw_tcp_row(o)?);
     Ok(rows)
+}
+
+/// `JointEstimate` with the export in the producer's process, as a bridge stage grouped with
+/// its producer (`process = ...` on both nodes) runs it: this process holds the Zenoh session,
+/// its liveliness token and the publisher a bridge stage declares, and puts each sample in the
+/// bridge's wire format on the bridge's key; only the importing bridge runs as a process. The
+/// path has one wake-up less than the full bridge row (the exporting bridge's).
+fn export_in_producer_row(o: &BridgeBenchOptions) -> Result<HopRow, String> {
+    use zenoh::Wait;
+    let port = crate::free_loopback_port().map_err(|e| format!("finding a free port: {e}"))?;
+    let services_list = "[\"bowden/joint_estimate\"]";
+    let p: crate::BridgeParams = toml::from_str(&format!(
+        "listen = [\"tcp/127.0.0.1:{port}\"]\nexport = {services_list}\nlow_latency = true"
+    ))
+    .map_err(|e| e.to_string())?;
+    p.validate()?;
+    let session = zenoh::open(p.zenoh_config()?).wait().map_err(|e| e.to_string())?;
+    let zid = session.zid().to_string();
+    let _token = session
+        .liveliness()
+        .declare_token(p.token_key(&zid))
+        .wait()
+        .map_err(|e| e.to_string())?;
+    let publisher = session
+        .declare_publisher(p.key_of(services::JOINT_ESTIMATE))
+        .express(true)
+        .congestion_control(zenoh::qos::CongestionControl::Drop)
+        .wait()
+        .map_err(|e| e.to_string())?;
+    let ty = crate::wire::WireType::of(services::JOINT_ESTIMATE).ok_or("JointEstimate has no wire type")?;
+    let link = Link::start_import_only(o, &format!("{}p", o.prefix), services_list, true, port)?;
+    let mut seq = 0u64;
+    let send = |index: u64| -> Result<(), String> {
+        let mut e = JointEstimate {
+            n_joints: 5,
+            ..Default::default()
+        };
+        *e.header_mut() = SampleHeader {
+            seq,
+            tick: index,
+            t_origin_ns: monotonic_ns(),
+        };
+        seq += 1;
+        publisher
+            .put(crate::wire::encode(ty, &[e.as_bytes()]))
+            .wait()
+            .map_err(|e| e.to_string())
+    };
+    paced_stream(
+        &link.prefixes[1],
+        false,
+        o.samples,
+        o.rate_hz,
+        "JointEstimate (184 B)",
+        "bridge, import side only: export in the producer's process (Zenoh low-latency transport)",
+        send,
+    )
 }
 
 /// A plain iceoryx2 hop's figures as a row beside the bridge's.

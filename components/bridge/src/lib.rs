@@ -45,6 +45,51 @@ use zenoh::Wait;
 pub use params::BridgeParams;
 use wire::{WireError, WireType};
 
+/// Zenoh's runtime layout in bowden's processes unless the user sets `ZENOH_RUNTIME`: all of
+/// Zenoh's runtimes (app, acceptor, tx, rx, net) handed over to one tokio runtime with one
+/// worker.
+///
+/// Why: by default Zenoh runs five tokio runtimes, each with its own reactor. A TCP link is
+/// registered with the reactor of the runtime that opened it but read by a task of the rx
+/// runtime, so every message costs two thread wake-ups: that reactor's thread, then (by futex)
+/// an rx worker (`strace -f`, docs/architecture.md §10). On one runtime the worker that waits in
+/// epoll reads the socket itself. A 2-vCPU control or vision PC gains nothing from five
+/// runtimes' threads either. Measured with `bowden bench bridge` (Zenoh alone, process to
+/// process, 200 Hz, interleaved runs): p50 / p99 ≈ 125–145 / 300 µs by default against
+/// ≈ 75 / 165 µs with this layout. Zenoh documents the `handover` setting for this purpose
+/// (zenoh-runtime's `ZRuntime`).
+pub const ZENOH_RUNTIME_LAYOUT: &str =
+    "(app: (worker_threads: 1), acc: (handover: app), tx: (handover: app), rx: (handover: app), net: (handover: app))";
+
+/// The value to give `ZENOH_RUNTIME`, if any, when it is now `current`: bowden's layout when
+/// unset; nothing when the user chose one (theirs wins, even an empty one).
+pub fn zenoh_runtime_to_set(current: Option<&std::ffi::OsStr>) -> Option<&'static str> {
+    match current {
+        Some(_) => None,
+        None => Some(ZENOH_RUNTIME_LAYOUT),
+    }
+}
+
+/// Applies [`zenoh_runtime_to_set`] to this process's environment. Zenoh reads the variable
+/// once, when it first starts a runtime, so this must run before any Zenoh call; and since
+/// changing the environment is not thread-safe, before the process starts threads (the first
+/// line of `main`). Children started afterwards inherit the setting.
+pub fn use_bowden_zenoh_runtime() {
+    if let Some(v) = zenoh_runtime_to_set(std::env::var_os("ZENOH_RUNTIME").as_deref()) {
+        std::env::set_var("ZENOH_RUNTIME", v);
+    }
+}
+
+/// The Zenoh runtime layout this process runs with (for reports): the variable's value, or
+/// Zenoh's own default when unset.
+pub fn zenoh_runtime_in_effect() -> String {
+    match std::env::var("ZENOH_RUNTIME") {
+        Ok(v) if v == ZENOH_RUNTIME_LAYOUT => format!("bowden's single runtime `{v}`"),
+        Ok(v) => format!("ZENOH_RUNTIME=`{v}` (set by the user)"),
+        Err(_) => "Zenoh's default (five runtimes)".into(),
+    }
+}
+
 /// A TCP port on 127.0.0.1 free at the time of the call (for loopback links in tests and
 /// benches; another process may take it before it is used).
 pub fn free_loopback_port() -> std::io::Result<u16> {
@@ -238,8 +283,19 @@ impl BridgeStage {
         });
 
         let config = params.zenoh_config().map_err(|e| build_err(env, "zenoh config", e))?;
-        let session = zenoh::open(config)
-            .wait()
+        // Zenoh parses ZENOH_RUNTIME when it first starts a runtime, and panics if it is not
+        // valid: report that as this stage's error rather than a crash of the process.
+        let session = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| zenoh::open(config).wait()))
+            .map_err(|_| {
+                build_err(
+                    env,
+                    "opening the Zenoh session",
+                    format!(
+                        "Zenoh could not start its runtime: is ZENOH_RUNTIME valid? ({})",
+                        zenoh_runtime_in_effect()
+                    ),
+                )
+            })?
             .map_err(|e| build_err(env, "opening the Zenoh session", e))?;
         let zid = session.zid().to_string();
 
