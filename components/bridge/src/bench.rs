@@ -435,12 +435,7 @@ fn export_in_producer_row(o: &BridgeBenchOptions) -> Result<HopRow, String> {
         .declare_token(p.token_key(&zid))
         .wait()
         .map_err(|e| e.to_string())?;
-    let publisher = session
-        .declare_publisher(p.key_of(services::JOINT_ESTIMATE))
-        .express(true)
-        .congestion_control(zenoh::qos::CongestionControl::Drop)
-        .wait()
-        .map_err(|e| e.to_string())?;
+    let publisher = crate::export_publisher(&session, p.key_of(services::JOINT_ESTIMATE)).map_err(|e| e.to_string())?;
     let ty = crate::wire::WireType::of(services::JOINT_ESTIMATE).ok_or("JointEstimate has no wire type")?;
     let link = Link::start_import_only(o, &format!("{}p", o.prefix), services_list, true, port)?;
     let mut seq = 0u64;
@@ -542,12 +537,8 @@ pub fn raw_zenoh_row(o: &BridgeBenchOptions, low_latency: bool) -> Result<HopRow
     ))
     .map_err(|e| e.to_string())?;
     let session = zenoh::open(p.zenoh_config()?).wait().map_err(|e| e.to_string())?;
-    let publisher = session
-        .declare_publisher(RAW_KEY)
-        .express(true)
-        .congestion_control(zenoh::qos::CongestionControl::Drop)
-        .wait()
-        .map_err(|e| e.to_string())?;
+    // The same publisher settings as a bridge's exports.
+    let publisher = crate::export_publisher(&session, RAW_KEY.to_string()).map_err(|e| e.to_string())?;
     let args = [
         "bridge-peer".to_string(),
         "--connect".into(),

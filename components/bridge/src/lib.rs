@@ -61,22 +61,13 @@ use wire::{WireError, WireType};
 pub const ZENOH_RUNTIME_LAYOUT: &str =
     "(app: (worker_threads: 1), acc: (handover: app), tx: (handover: app), rx: (handover: app), net: (handover: app))";
 
-/// The value to give `ZENOH_RUNTIME`, if any, when it is now `current`: bowden's layout when
-/// unset; nothing when the user chose one (theirs wins, even an empty one).
-pub fn zenoh_runtime_to_set(current: Option<&std::ffi::OsStr>) -> Option<&'static str> {
-    match current {
-        Some(_) => None,
-        None => Some(ZENOH_RUNTIME_LAYOUT),
-    }
-}
-
-/// Applies [`zenoh_runtime_to_set`] to this process's environment. Zenoh reads the variable
-/// once, when it first starts a runtime, so this must run before any Zenoh call; and since
-/// changing the environment is not thread-safe, before the process starts threads (the first
-/// line of `main`). Children started afterwards inherit the setting.
+/// Sets `ZENOH_RUNTIME` to [`ZENOH_RUNTIME_LAYOUT`] unless the user set it (theirs wins, even
+/// an empty one). Zenoh reads the variable once, when it first starts a runtime, so this must
+/// run before any Zenoh call; and since changing the environment is not thread-safe, before the
+/// process starts threads (the first line of `main`). Children started afterwards inherit it.
 pub fn use_bowden_zenoh_runtime() {
-    if let Some(v) = zenoh_runtime_to_set(std::env::var_os("ZENOH_RUNTIME").as_deref()) {
-        std::env::set_var("ZENOH_RUNTIME", v);
+    if std::env::var_os("ZENOH_RUNTIME").is_none() {
+        std::env::set_var("ZENOH_RUNTIME", ZENOH_RUNTIME_LAYOUT);
     }
 }
 
@@ -88,6 +79,20 @@ pub fn zenoh_runtime_in_effect() -> String {
         Ok(v) => format!("ZENOH_RUNTIME=`{v}` (set by the user)"),
         Err(_) => "Zenoh's default (five runtimes)".into(),
     }
+}
+
+/// The Zenoh publisher of one exported service on `key`: express (sent at once, not batched),
+/// and dropping rather than blocking when the network cannot keep up: a bridge must never stall
+/// the pipeline it serves (newest data matters most).
+pub(crate) fn export_publisher(
+    session: &zenoh::Session,
+    key: String,
+) -> zenoh::Result<zenoh::pubsub::Publisher<'static>> {
+    session
+        .declare_publisher(key)
+        .express(true)
+        .congestion_control(zenoh::qos::CongestionControl::Drop)
+        .wait()
 }
 
 /// A TCP port on 127.0.0.1 free at the time of the call (for loopback links in tests and
@@ -304,13 +309,7 @@ impl BridgeStage {
             let ty = WireType::of(s).ok_or_else(|| env.error(format!("cannot bridge service `{s}`")))?;
             let port = visit_payload(s, MakeExport { env, service: s })
                 .unwrap_or_else(|| Err(env.error(format!("cannot bridge service `{s}`"))))?;
-            // Drop rather than block when the network cannot keep up: a bridge must never
-            // stall the pipeline it serves (newest data matters most).
-            let publisher = session
-                .declare_publisher(params.key_of(s))
-                .express(true)
-                .congestion_control(zenoh::qos::CongestionControl::Drop)
-                .wait()
+            let publisher = export_publisher(&session, params.key_of(s))
                 .map_err(|e| build_err(env, &format!("declaring the publisher of `{s}`"), e))?;
             exports.push(Export {
                 service: s.clone(),
