@@ -138,12 +138,15 @@ fn bench_bridge_measures_every_stream_and_frames_arrive_intact() {
     ]);
     let rows: Vec<serde_json::Value> = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let paths: Vec<&str> = rows.iter().map(|r| r["path"].as_str().unwrap()).collect();
-    assert_eq!(rows.len(), 8, "{paths:?}");
-    // The export in the producer's process: the importing bridge alone delivers.
-    assert!(
-        paths.iter().any(|p| p.starts_with("bridge, import side only")),
-        "{paths:?}"
-    );
+    assert_eq!(rows.len(), 9, "{paths:?}");
+    // The export in the producer's process: the importing bridge alone delivers, to a consumer
+    // woken by the event and to one polling its subscriber.
+    for p in [
+        "bridge, import side only: export",
+        "bridge, import side only, read by polling",
+    ] {
+        assert!(paths.iter().any(|x| x.starts_with(p)), "{p}: {paths:?}");
+    }
     // The machine's own hop under the network rows: TCP loses nothing.
     let tcp = rows
         .iter()

@@ -181,8 +181,26 @@ struct Received {
     last_ns: u64,
 }
 
+/// How the receiving thread learns that a sample arrived.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Reader {
+    /// Sleeps on the service's event until the publisher's notification wakes it (an
+    /// event-driven consumer: one more wake-up on the path).
+    Woken,
+    /// Spins on the subscriber: the time the sample became readable in the consumer's shared
+    /// memory, which is what a consumer running on its own tick (bowden's stages) gets without
+    /// waiting for any wake-up.
+    Polling,
+}
+
 /// Receives on `prefix` until `stop`; frames are checked against [`frame_payload`].
-fn receiver(prefix: String, frames: bool, stop: Arc<AtomicBool>, ready: Arc<AtomicBool>) -> Result<Received, String> {
+fn receiver(
+    prefix: String,
+    frames: bool,
+    reader: Reader,
+    stop: Arc<AtomicBool>,
+    ready: Arc<AtomicBool>,
+) -> Result<Received, String> {
     let ctx = PortContext::new("bench-rx", &settings(&prefix)).map_err(|e| e.to_string())?;
     let service = if frames {
         services::RGBD_FRAME
@@ -209,7 +227,12 @@ fn receiver(prefix: String, frames: bool, stop: Arc<AtomicBool>, ready: Arc<Atom
     };
     let mut expected = vec![0u8; RgbdFrameHeader::payload_len_for(640, 480)];
     while !stop.load(Ordering::Acquire) {
-        waiter.wait(Duration::from_millis(20));
+        match reader {
+            Reader::Woken => {
+                waiter.wait(Duration::from_millis(20));
+            }
+            Reader::Polling => std::hint::spin_loop(),
+        }
         loop {
             let now;
             if let Some(inp) = est.as_mut() {
@@ -291,15 +314,26 @@ fn stream(link: &Link, frames: bool, count: usize, rate_hz: f64, stream: &str, p
         wake.notify().map_err(|e| e.to_string())?;
         Ok(())
     };
-    paced_stream(&link.prefixes[1], frames, count, rate_hz, stream, path, send)
+    paced_stream(
+        &link.prefixes[1],
+        frames,
+        Reader::Woken,
+        count,
+        rate_hz,
+        stream,
+        path,
+        send,
+    )
 }
 
 /// Receives on `rx_prefix` while `send(index)` is called `count` times at `rate_hz` (after a
 /// warm-up of unmeasured indices ≥ 2^40 that lets the link carry data end to end); returns
 /// the row of what arrived.
+#[allow(clippy::too_many_arguments)]
 fn paced_stream(
     rx_prefix: &str,
     frames: bool,
+    reader: Reader,
     count: usize,
     rate_hz: f64,
     stream: &str,
@@ -310,7 +344,7 @@ fn paced_stream(
     let ready = Arc::new(AtomicBool::new(false));
     let rx = {
         let (p, s, r) = (rx_prefix.to_string(), stop.clone(), ready.clone());
-        std::thread::spawn(move || receiver(p, frames, s, r))
+        std::thread::spawn(move || receiver(p, frames, reader, s, r))
     };
     while !ready.load(Ordering::Acquire) && !rx.is_finished() {
         std::thread::sleep(Duration::from_millis(1));
@@ -406,7 +440,9 @@ pub fn bridge_bench(o: &BridgeBenchOptions, progress: &dyn Fn(&str)) -> Result<V
         }
     }
     progress("JointEstimate with the export in the producer's process (only the importing bridge runs apart)");
-    rows.push(export_in_producer_row(o)?);
+    rows.push(export_in_producer_row(o, Reader::Woken)?);
+    progress("the same, read by polling (when the sample is readable on the consumer's side)");
+    rows.push(export_in_producer_row(o, Reader::Polling)?);
     progress("Zenoh alone, process to process, at the same rate");
     rows.push(raw_zenoh_row(o, true)?);
     progress("a plain TCP socket, process to process, at the same rate (the machine's network floor)");
@@ -419,7 +455,12 @@ pub fn bridge_bench(o: &BridgeBenchOptions, progress: &dyn Fn(&str)) -> Result<V
 /// its liveliness token and the publisher a bridge stage declares, and puts each sample in the
 /// bridge's wire format on the bridge's key; only the importing bridge runs as a process. The
 /// path has one wake-up less than the full bridge row (the exporting bridge's).
-fn export_in_producer_row(o: &BridgeBenchOptions) -> Result<HopRow, String> {
+///
+/// With [`Reader::Polling`] the consumer spins on its subscriber instead of sleeping on the
+/// event: the row then ends when the sample is readable on the consumer's side, as for a
+/// stage that reads its inputs on its own tick, and the path has one wake-up (the importing
+/// bridge's Zenoh thread), like "Zenoh alone".
+fn export_in_producer_row(o: &BridgeBenchOptions, reader: Reader) -> Result<HopRow, String> {
     use zenoh::Wait;
     let port = crate::free_loopback_port().map_err(|e| format!("finding a free port: {e}"))?;
     let services_list = "[\"bowden/joint_estimate\"]";
@@ -437,7 +478,11 @@ fn export_in_producer_row(o: &BridgeBenchOptions) -> Result<HopRow, String> {
         .map_err(|e| e.to_string())?;
     let publisher = crate::export_publisher(&session, p.key_of(services::JOINT_ESTIMATE)).map_err(|e| e.to_string())?;
     let ty = crate::wire::WireType::of(services::JOINT_ESTIMATE).ok_or("JointEstimate has no wire type")?;
-    let link = Link::start_import_only(o, &format!("{}p", o.prefix), services_list, true, port)?;
+    let tag = match reader {
+        Reader::Woken => "p",
+        Reader::Polling => "q",
+    };
+    let link = Link::start_import_only(o, &format!("{}{tag}", o.prefix), services_list, true, port)?;
     let mut seq = 0u64;
     let send = |index: u64| -> Result<(), String> {
         let mut e = JointEstimate {
@@ -455,13 +500,18 @@ fn export_in_producer_row(o: &BridgeBenchOptions) -> Result<HopRow, String> {
             .wait()
             .map_err(|e| e.to_string())
     };
+    let path = match reader {
+        Reader::Woken => "bridge, import side only: export in the producer's process (Zenoh low-latency transport)",
+        Reader::Polling => "bridge, import side only, read by polling: until readable on the consumer's side",
+    };
     paced_stream(
         &link.prefixes[1],
         false,
+        reader,
         o.samples,
         o.rate_hz,
         "JointEstimate (184 B)",
-        "bridge, import side only: export in the producer's process (Zenoh low-latency transport)",
+        path,
         send,
     )
 }
