@@ -294,3 +294,103 @@ fn bad_configs_name_the_field() {
     fails_with(&out2, &["--families", "nope", "capstan"]);
     assert!(!Path::new(&out).join("units").exists(), "nothing ran");
 }
+
+/// `[recipe.closed_loop]` and `recipe.trajectory_sets` (issue #12): a second collection round
+/// under the first round's controller, whose models the evaluation then uses, and a second set
+/// of paths reported as controllers `…@NAME`.
+#[test]
+fn quick_transfer_with_a_closed_loop_round_and_a_second_path_set() {
+    let shm_before = shm_files(&["bcol", "bev"]);
+    let tmp = tempfile::tempdir().unwrap();
+    let extra = format!(
+        "trajectory_sets = {{ large = \"{}\" }}\n[recipe.closed_loop]\nsamples = 40\nexcitation = \"paper\"",
+        repo().join("configs/trajectories/large").display()
+    );
+    let cfg = config(tmp.path(), &extra, "");
+    let out = tmp.path().join("out");
+    let (cfg_s, out_s) = (cfg.display().to_string(), out.display().to_string());
+    let args = ["bench", "transfer", "--config", &cfg_s, "--out", &out_s, "--quick"];
+    let stdout = ok(&bowden(&args));
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("transfer.json")).unwrap()).unwrap();
+    let names: Vec<String> = steps(&v).into_iter().map(|(s, _)| s).collect();
+    assert_eq!(
+        names,
+        [
+            "collect",
+            "train-tcn-forward",
+            "train-tcn-inverse",
+            "tune",
+            "collect-closed-loop",
+            "train-tcn-forward-closed-loop",
+            "train-tcn-inverse-closed-loop",
+            "tune-closed-loop",
+            "evaluate",
+            "evaluate-large",
+        ]
+    );
+    let unit_dir = out.join("units/capstan/unit-4242");
+    // The second round ran under the first round's controller and added to its data; the
+    // evaluations use the controller tuned on the whole.
+    let collect2 = std::fs::read_to_string(unit_dir.join("collect-closed-loop.done")).unwrap();
+    assert!(
+        collect2.contains("--controller-config") && collect2.contains("unit-4242/controller.toml"),
+        "{collect2}"
+    );
+    assert!(collect2.contains("--extend"), "{collect2}");
+    let first = bowden_learning::dataset::Dataset::read_dir(&unit_dir.join("data"))
+        .unwrap()
+        .0;
+    let whole = bowden_learning::dataset::Dataset::read_dir(&unit_dir.join("data-closed-loop"))
+        .unwrap()
+        .0;
+    assert!(whole.len() > first.len(), "{} rows after {}", whole.len(), first.len());
+    for step in ["evaluate", "evaluate-large"] {
+        let stamp = std::fs::read_to_string(unit_dir.join(format!("{step}.done"))).unwrap();
+        assert!(stamp.contains("controller-closed-loop.toml"), "{step}: {stamp}");
+        assert_eq!(
+            stamp.contains("--trajectories-dir"),
+            step == "evaluate-large",
+            "{stamp}"
+        );
+    }
+    // Rows of both sets for every path and controller, and the set's own goal lines.
+    let rows = v["units"][0]["rows"].as_array().unwrap();
+    for t in ["random", "circle", "zigzag"] {
+        for c in ["paper", "newton", "paper@large", "newton@large"] {
+            assert!(
+                rows.iter().any(|r| r["trajectory"] == t && r["controller"] == c),
+                "no row {t}/{c}"
+            );
+        }
+    }
+    // The large paths are larger: the uncalibrated robot misses them by more.
+    let unc = |c: &str| {
+        rows.iter()
+            .filter(|r| r["controller"] == c)
+            .map(|r| r["uncalibrated"]["position_truth"].as_f64().unwrap())
+            .sum::<f64>()
+    };
+    assert!(
+        unc("newton@large") > unc("newton"),
+        "{} vs {}",
+        unc("newton@large"),
+        unc("newton")
+    );
+    assert!(stdout.contains("| newton@large |"), "{stdout}");
+    assert!(stdout.contains("4b. a second round under that controller"), "{stdout}");
+    assert!(stdout.contains("reported as controllers `…@large`"), "{stdout}");
+    assert!(shm_leaked_since(&shm_before, &["bcol", "bev"]).is_empty());
+
+    // Bad values name the field.
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    std::fs::write(&cfg, text.replace("samples = 40", "samples = 1")).unwrap();
+    fails_with(&bowden(&args), &["recipe.closed_loop.samples"]);
+    std::fs::write(&cfg, text.replace("excitation = \"paper\"", "excitation = \"chirp\"")).unwrap();
+    fails_with(&bowden(&args), &["recipe.closed_loop.excitation", "chirp"]);
+    std::fs::write(
+        &cfg,
+        text.replace("configs/trajectories/large", "configs/trajectories/huge"),
+    )
+    .unwrap();
+    fails_with(&bowden(&args), &["recipe.trajectory_sets.large", "huge"]);
+}

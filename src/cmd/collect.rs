@@ -53,6 +53,19 @@ pub struct CollectArgs {
     /// three robots and three paths, docs/results/data-study/).
     #[arg(long, default_value = "mixed", value_parser = super::choice(&["paper", "mixed"]), ignore_case = true)]
     pub excitation: String,
+    /// Collect under the compensator: the excitation's commands become *targets*, compensated
+    /// by this controller (its models, mode and safety), and `q_cmd` records the command it
+    /// sent. A model pair trained on a first dataset thus records what a compensator commands
+    /// on this robot — the jumps across the dead band on reversals — which is where such a pair
+    /// is least accurate (a second collection round, `--extend`; docs/results/data-study/).
+    #[arg(long, value_name = "CONTROLLER")]
+    pub controller_config: Option<PathBuf>,
+    /// Add to the dataset in this directory: the output (`--out`, another directory) holds this
+    /// run's rows followed by that dataset's, so its last 20 % — the validation stretch of
+    /// `train` and `tune` — stays the earlier dataset's and every new row is trained on. The
+    /// histories of the first windows after the seam span both runs: the manifest says where.
+    #[arg(long, value_name = "DIR")]
+    pub extend: Option<PathBuf>,
 }
 
 #[derive(Subcommand)]
@@ -81,6 +94,26 @@ fn collect(mut a: CollectArgs) -> Result<()> {
     if a.settle_ticks == 0 {
         bail!("--settle-ticks must be at least 1");
     }
+    if let Some(c) = &a.controller_config {
+        a.controller_config = Some(crate::home::path(c).context("--controller-config")?);
+    }
+    let before = match &a.extend {
+        Some(dir) => {
+            if std::fs::canonicalize(dir).ok() == std::fs::canonicalize(&a.out).ok() {
+                bail!("--extend {}: must differ from --out", dir.display());
+            }
+            let (ds, manifest) = Dataset::read_dir(dir).with_context(|| format!("--extend {}", dir.display()))?;
+            if ds.joints != N_JOINTS {
+                bail!(
+                    "--extend {}: {} joints, the robot has {N_JOINTS}",
+                    dir.display(),
+                    ds.joints
+                );
+            }
+            Some((ds, manifest))
+        }
+        None => None,
+    };
     let robot = Robot::load(&a.robot)?;
     let excitation = match a.excitation.as_str() {
         "mixed" => bowden_trajectory::Excitation::mixed(),
@@ -90,8 +123,15 @@ fn collect(mut a: CollectArgs) -> Result<()> {
         .map_err(|e| anyhow::anyhow!("--excitation {}: {e}", a.excitation))?;
     let work = a.out.join("pipeline");
     let tick_ns = PipelineConfig::load(&a.config, &Overrides::default())?.period_ns();
+    let compensator_mode = match &a.controller_config {
+        Some(c) => bowden_compensator::ControllerConfig::load(c)
+            .with_context(|| format!("--controller-config {}", c.display()))?
+            .mode
+            .to_string(),
+        None => "uncalibrated".into(),
+    };
     let mut set = vec![
-        ("compensator", "mode", toml::Value::String("uncalibrated".into())),
+        ("compensator", "mode", toml::Value::String(compensator_mode.clone())),
         (
             "camera",
             "fps",
@@ -101,6 +141,10 @@ fn collect(mut a: CollectArgs) -> Result<()> {
     if let Some(p) = &a.plant {
         let abs = std::fs::canonicalize(p).with_context(|| format!("--plant {}", p.display()))?;
         set.push(("plant", "config", toml::Value::String(abs.display().to_string())));
+    }
+    if let Some(c) = &a.controller_config {
+        let abs = std::fs::canonicalize(c).with_context(|| format!("--controller-config {}", c.display()))?;
+        set.push(("compensator", "config", toml::Value::String(abs.display().to_string())));
     }
     let pipeline = pipeline_variant(&a.config, &set, &work.join("collect.toml"))?;
     let ov = Overrides {
@@ -117,6 +161,7 @@ fn collect(mut a: CollectArgs) -> Result<()> {
     opts.taps = Taps {
         plant_state: true,
         joint_estimate: true,
+        joint_command: a.controller_config.is_some(),
         ..Default::default()
     };
     let mut session = LockstepSession::start(&cfg, opts)?;
@@ -141,6 +186,7 @@ fn collect(mut a: CollectArgs) -> Result<()> {
         for (i, q) in commands.iter().enumerate() {
             let mut state = None;
             let mut estimate = None;
+            let mut sent = None;
             let mut t_ns = 0;
             for _ in 0..a.settle_ticks {
                 let out = session.step_with_target(q).with_context(|| format!("command {i}"))?;
@@ -148,6 +194,7 @@ fn collect(mut a: CollectArgs) -> Result<()> {
                     bail!("command {i}: a node failed at tick {}: {e}", out.tick);
                 }
                 state = out.plant_state.or(state);
+                sent = out.joint_command.or(sent);
                 estimate = out.joint_estimate;
                 t_ns = out.t_sim_ns;
             }
@@ -159,7 +206,12 @@ fn collect(mut a: CollectArgs) -> Result<()> {
             }
             let est = estimate.filter(|e| e.quality == JointEstimate::QUALITY_VALID);
             data.t_ns.push(t_ns as i64);
-            data.q_cmd_deg.extend_from_slice(q);
+            match (&a.controller_config, sent) {
+                (None, _) => data.q_cmd_deg.extend_from_slice(q),
+                // What the compensator sent for this target (the last of the hold).
+                (Some(_), Some(c)) => data.q_cmd_deg.extend_from_slice(&c.q_cmd_deg[..N_JOINTS]),
+                (Some(_), None) => bail!("command {i}: the compensator published no command"),
+            }
             match est {
                 Some(e) => data.q_phy_deg.extend_from_slice(&e.q_phy_deg[..N_JOINTS]),
                 // Kept and flagged, never dropped: the sequence models need the whole history.
@@ -177,16 +229,50 @@ fn collect(mut a: CollectArgs) -> Result<()> {
     let report = session.shutdown();
     run?;
     report?;
+    let new_rows = data.len();
+    // --extend: this run's rows first, the earlier dataset's after them, so that the last 20 %
+    // (train's and tune's validation stretch) stays that dataset's and every new row trains.
+    let extended = match before {
+        Some((first, manifest)) => {
+            let seam = data.len();
+            let t0 = data.t_ns.last().copied().unwrap_or(0);
+            data.t_ns.extend(first.t_ns.iter().map(|t| t0 + 1 + t - first.t_ns[0]));
+            data.q_cmd_deg.extend_from_slice(&first.q_cmd_deg);
+            data.q_phy_deg.extend_from_slice(&first.q_phy_deg);
+            data.valid.extend_from_slice(&first.valid);
+            data.q_true_deg = match (data.q_true_deg.take(), first.q_true_deg) {
+                (Some(mut a), Some(b)) => {
+                    a.extend_from_slice(&b);
+                    Some(a)
+                }
+                // Truth of a part only is no truth column.
+                _ => None,
+            };
+            Some(serde_json::json!({
+                "dir": a.extend.as_ref().map(|p| p.display().to_string()),
+                "first_row": seam,
+                "rows": first.t_ns.len(),
+                "csv_fnv1a64": manifest.csv_fnv1a64,
+                "source": manifest.source,
+                "provenance": manifest.provenance,
+            }))
+        }
+        None => None,
+    };
     let config_text = std::fs::read_to_string(&pipeline).unwrap_or_default()
         + &std::fs::read_to_string(&a.robot).unwrap_or_default()
         + &a.plant
+            .as_ref()
+            .and_then(|p| std::fs::read_to_string(p).ok())
+            .unwrap_or_default()
+        + &a.controller_config
             .as_ref()
             .and_then(|p| std::fs::read_to_string(p).ok())
             .unwrap_or_default();
     let plant_unit = bowden_plant::PlantConfig::load_or_shipped(a.plant.as_deref())?
         .variation
         .unit_for_run(a.seed);
-    let provenance = serde_json::json!({
+    let mut provenance = serde_json::json!({
         "command": std::env::args().collect::<Vec<_>>(),
         "pipeline": pipeline.display().to_string(),
         "robot": a.robot.display().to_string(),
@@ -203,6 +289,18 @@ fn collect(mut a: CollectArgs) -> Result<()> {
             "dither_deg": excitation.dither_deg,
         },
     });
+    // Only when used, so that a plain collection's manifest stays byte for byte what it was.
+    if let Some(c) = &a.controller_config {
+        // The excitation's commands were targets, compensated by this controller; q_cmd is
+        // what it sent.
+        provenance["controller_config"] = serde_json::json!(c.display().to_string());
+        provenance["compensator_mode"] = serde_json::json!(compensator_mode);
+    }
+    if let Some(e) = extended {
+        // This run's `new_rows` rows come first, that dataset's follow from row `first_row` on.
+        provenance["extends"] = e;
+        provenance["new_rows"] = serde_json::json!(new_rows);
+    }
     let manifest = data.write_dir(
         &a.out,
         "collect",

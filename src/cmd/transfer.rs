@@ -164,6 +164,12 @@ pub struct Recipe {
     pub repeats: u32,
     /// `evaluate --trajectories`.
     pub trajectories: Vec<String>,
+    /// Further sets of the same trajectory names, each a directory (`evaluate
+    /// --trajectories-dir`), e.g. `large = "configs/trajectories/large"`: the paths at the
+    /// paper's magnitude. Each is evaluated beside the shipped paths (with and without feedback)
+    /// and reported as controllers `paper@NAME`, `newton+fb@NAME`, ..., with goals of their own.
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub trajectory_sets: std::collections::BTreeMap<String, PathBuf>,
     /// `evaluate --controllers` (must include uncalibrated: the reference of every reduction).
     pub controllers: Vec<String>,
     /// `evaluate --max-points`.
@@ -177,6 +183,20 @@ pub struct Recipe {
     /// feedback"): evaluated a second time with it, as controllers `paper+fb`, `newton+fb`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub feedback: Option<FeedbackRecipe>,
+    /// A second collection round under the compensator the first round made (`collect
+    /// --controller-config --extend`), then every model trained and tuned again on the whole.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub closed_loop: Option<ClosedLoopRecipe>,
+}
+
+/// `[recipe.closed_loop]`: what the second, compensated collection round records.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClosedLoopRecipe {
+    /// `collect --samples`: random configurations, now targets of the compensator.
+    pub samples: usize,
+    /// `collect --excitation` of the targets: paper | mixed.
+    pub excitation: String,
 }
 
 /// `[recipe.feedback]`: the same `[feedback]` settings for every unit, added to the controller
@@ -243,6 +263,20 @@ impl TransferConfig {
         if !["paper", "mixed"].contains(&r.excitation.as_str()) {
             return Err(format!("recipe.excitation: `{}` is not paper or mixed", r.excitation));
         }
+        if let Some(cl) = &r.closed_loop {
+            if cl.samples < 2 {
+                return Err(format!(
+                    "recipe.closed_loop.samples: need at least 2 random configurations, got {}",
+                    cl.samples
+                ));
+            }
+            if !["paper", "mixed"].contains(&cl.excitation.as_str()) {
+                return Err(format!(
+                    "recipe.closed_loop.excitation: `{}` is not paper or mixed",
+                    cl.excitation
+                ));
+            }
+        }
         if r.archs.is_empty() {
             return Err("recipe.archs: name at least one architecture".into());
         }
@@ -307,6 +341,13 @@ impl TransferConfig {
         for t in &r.trajectories {
             if !path_safe(t) {
                 return Err(format!("recipe.trajectories: `{t}` is not a trajectory name"));
+            }
+        }
+        for name in r.trajectory_sets.keys() {
+            if !path_safe(name) {
+                return Err(format!(
+                    "recipe.trajectory_sets: `{name}` (use letters, digits, `-`, `_`, `.`: it names a directory)"
+                ));
             }
         }
         for c in &r.controllers {
@@ -384,6 +425,10 @@ impl Recipe {
             seq_len: 10,
             repeats: 1,
             max_points: Some(8),
+            closed_loop: self.closed_loop.as_ref().map(|cl| ClosedLoopRecipe {
+                samples: 20,
+                ..cl.clone()
+            }),
             ..self.clone()
         }
     }
@@ -536,6 +581,8 @@ struct Ctx {
     base_controller: PathBuf,
     /// `recipe.feedback.config`, resolved and checked to hold a `[feedback]` table.
     feedback_config: Option<PathBuf>,
+    /// `recipe.trajectory_sets`, resolved: (name, directory).
+    trajectory_sets: Vec<(String, PathBuf)>,
     config_file: PathBuf,
     mp: MultiProgress,
 }
@@ -769,6 +816,134 @@ impl UnitRunner<'_> {
     }
 }
 
+/// Steps 3 and 4 of the recipe on one dataset: every model trained (the pair of each
+/// architecture, the judges, the further inverse candidates), then `tune` (or the base
+/// controller). `round` suffixes the step names, the models' directory and the controller
+/// ("" for the first dataset). Returns the controller and the name of the step that wrote it.
+fn train_and_tune(
+    runner: &mut UnitRunner,
+    data: &Path,
+    collect_step: &str,
+    round: &str,
+) -> std::result::Result<(PathBuf, String), Failure> {
+    let ctx = runner.ctx;
+    let r = &ctx.recipe;
+    let dir = runner.plan.dir.clone();
+    let s = |p: &Path| p.display().to_string();
+    // 3. Train every architecture in both directions, the judges' forward models and the
+    //    further inverse candidates.
+    let models = dir.join(format!("models{round}"));
+    let _ = std::fs::create_dir_all(&models);
+    let (mut fwd, mut inv, mut judges) = (Vec::new(), Vec::new(), Vec::new());
+    let mut trained = Vec::new();
+    let jobs = r
+        .archs
+        .iter()
+        .flat_map(|a| [(a, "forward"), (a, "inverse")])
+        .chain(
+            r.judge_archs
+                .iter()
+                .filter(|a| !r.archs.contains(a))
+                .map(|a| (a, "forward")),
+        )
+        .chain(r.inverse_archs.iter().map(|a| (a, "inverse")));
+    for (arch, direction) in jobs {
+        {
+            let model = models.join(format!("{arch}_{direction}_L{}.onnx", r.seq_len));
+            let (json, svg) = bowden_learning::report::sidecar_paths(&model);
+            let (epochs, early_stop) = r.training(arch);
+            let mut args: Vec<String> = vec![
+                "train".into(),
+                "--arch".into(),
+                arch.clone(),
+                "--direction".into(),
+                direction.into(),
+                "--seq-len".into(),
+                r.seq_len.to_string(),
+                "--epochs".into(),
+                epochs.to_string(),
+            ];
+            if let Some(e) = early_stop {
+                args.extend(["--early-stop".into(), e.to_string()]);
+            }
+            args.extend([
+                "--threads".into(),
+                ctx.threads.to_string(),
+                "--data".into(),
+                s(data),
+                "--out".into(),
+                s(&model),
+            ]);
+            let name = format!("train-{arch}-{direction}{round}");
+            runner.step(
+                &name,
+                Action::Exe(args),
+                "",
+                &[collect_step.into()],
+                &[model.clone(), json, svg],
+            )?;
+            trained.push(name);
+            if r.judge_archs.contains(arch) && direction == "forward" {
+                judges.push(model.clone());
+            }
+            if direction == "inverse" {
+                inv.push(model);
+            } else if r.archs.contains(arch) {
+                fwd.push(model);
+            } // else a judge only.
+        }
+    }
+    // 4. Choose the settings.
+    let tune_step = format!("tune{round}");
+    let controller = dir.join(format!("controller{round}.toml"));
+    let base_text = read_text(&ctx.base_controller);
+    let join = |v: &[PathBuf]| v.iter().map(|p| s(p)).collect::<Vec<_>>().join(",");
+    let action = if r.tune {
+        let mut args: Vec<String> = vec![
+            "tune".into(),
+            "--data".into(),
+            s(data),
+            "--forward".into(),
+            join(&fwd),
+            "--inverse".into(),
+            join(&inv),
+        ];
+        // A judge that is also a controller model judges already (tune rates every
+        // candidate by the other forward models).
+        let judge_only: Vec<PathBuf> = judges.iter().filter(|j| !fwd.contains(j)).cloned().collect();
+        if !judge_only.is_empty() {
+            args.extend(["--judge".into(), join(&judge_only)]);
+        }
+        args.extend(["--base".into(), s(&ctx.base_controller), "--out".into(), s(&controller)]);
+        Action::Exe(args)
+    } else {
+        let (f, i, c, b) = (
+            fwd[0].clone(),
+            inv[0].clone(),
+            controller.clone(),
+            ctx.base_controller.clone(),
+        );
+        Action::Local(
+            format!(
+                "recipe.tune = false: {} with model_fwd = {}, model_inv = {} → {}",
+                b.display(),
+                f.display(),
+                i.display(),
+                c.display()
+            ),
+            Box::new(move || controller_from_base(&b, &f, &i, &c)),
+        )
+    };
+    runner.step(
+        &tune_step,
+        action,
+        &base_text,
+        &trained,
+        &[controller.clone(), controller.with_extension("tune.json")],
+    )?;
+    Ok((controller, tune_step))
+}
+
 /// Runs `cmd` to its end: its exit status and the CPU time (user + system, s) it and the
 /// children it waited for used.
 fn run_measured(cmd: &mut std::process::Command) -> std::io::Result<(std::process::ExitStatus, f64)> {
@@ -879,11 +1054,17 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
         bar,
         records: Vec::new(),
         stamps: Default::default(),
-        total_steps: 3
-            + 2 * r.archs.len()
-            + r.judge_archs.iter().filter(|a| !r.archs.contains(a)).count()
-            + r.inverse_archs.len()
-            + if r.feedback.is_some() { 2 } else { 0 },
+        total_steps: {
+            let train_and_tune = 1
+                + 2 * r.archs.len()
+                + r.judge_archs.iter().filter(|a| !r.archs.contains(a)).count()
+                + r.inverse_archs.len();
+            let rounds = if r.closed_loop.is_some() { 2 } else { 1 };
+            let evaluations = if r.feedback.is_some() { 2 } else { 1 };
+            rounds * (1 + train_and_tune)
+                + evaluations * (1 + r.trajectory_sets.len())
+                + usize::from(r.feedback.is_some())
+        },
     };
     let t0 = Instant::now();
     let result = (|| -> std::result::Result<Vec<Row>, Failure> {
@@ -931,147 +1112,73 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
             &[],
             std::slice::from_ref(&data),
         )?;
-        // 3. Train every architecture in both directions, the judges' forward models and the
-        //    further inverse candidates.
-        let models = dir.join("models");
-        let _ = std::fs::create_dir_all(&models);
-        let (mut fwd, mut inv, mut judges) = (Vec::new(), Vec::new(), Vec::new());
-        let mut trained = Vec::new();
-        let jobs = r
-            .archs
-            .iter()
-            .flat_map(|a| [(a, "forward"), (a, "inverse")])
-            .chain(
-                r.judge_archs
-                    .iter()
-                    .filter(|a| !r.archs.contains(a))
-                    .map(|a| (a, "forward")),
-            )
-            .chain(r.inverse_archs.iter().map(|a| (a, "inverse")));
-        for (arch, direction) in jobs {
-            {
-                let model = models.join(format!("{arch}_{direction}_L{}.onnx", r.seq_len));
-                let (json, svg) = bowden_learning::report::sidecar_paths(&model);
-                let (epochs, early_stop) = r.training(arch);
-                let mut args: Vec<String> = vec![
-                    "train".into(),
-                    "--arch".into(),
-                    arch.clone(),
-                    "--direction".into(),
-                    direction.into(),
-                    "--seq-len".into(),
-                    r.seq_len.to_string(),
-                    "--epochs".into(),
-                    epochs.to_string(),
-                ];
-                if let Some(e) = early_stop {
-                    args.extend(["--early-stop".into(), e.to_string()]);
-                }
-                args.extend([
-                    "--threads".into(),
-                    ctx.threads.to_string(),
-                    "--data".into(),
-                    s(&data),
-                    "--out".into(),
-                    s(&model),
-                ]);
-                let name = format!("train-{arch}-{direction}");
-                runner.step(
-                    &name,
-                    Action::Exe(args),
-                    "",
-                    &["collect".into()],
-                    &[model.clone(), json, svg],
-                )?;
-                trained.push(name);
-                if r.judge_archs.contains(arch) && direction == "forward" {
-                    judges.push(model.clone());
-                }
-                if direction == "inverse" {
-                    inv.push(model);
-                } else if r.archs.contains(arch) {
-                    fwd.push(model);
-                } // else a judge only.
-            }
-        }
-        // 4. Choose the settings.
-        let controller = dir.join("controller.toml");
-        let base_text = read_text(&ctx.base_controller);
-        let join = |v: &[PathBuf]| v.iter().map(|p| s(p)).collect::<Vec<_>>().join(",");
-        let action = if r.tune {
-            let mut args: Vec<String> = vec![
-                "tune".into(),
-                "--data".into(),
+        // 3–4. Train every model and choose the settings.
+        let (mut controller, mut tune_step) = train_and_tune(&mut runner, &data, "collect", "")?;
+        // 3b–4b. A second round under the compensator the first round made: its commands on
+        //    this robot are added to the data and everything is trained and tuned again.
+        if let Some(cl) = &r.closed_loop {
+            let data2 = dir.join("data-closed-loop");
+            let collect2 = vec![
+                "collect".into(),
+                "--plant".into(),
+                s(&plant),
+                "--samples".into(),
+                cl.samples.to_string(),
+                "--seed".into(),
+                (ctx.seed + 1).to_string(),
+                "--excitation".into(),
+                cl.excitation.clone(),
+                "--controller-config".into(),
+                s(&controller),
+                "--extend".into(),
                 s(&data),
-                "--forward".into(),
-                join(&fwd),
-                "--inverse".into(),
-                join(&inv),
+                "--out".into(),
+                s(&data2),
             ];
-            // A judge that is also a controller model judges already (tune rates every
-            // candidate by the other forward models).
-            let judge_only: Vec<PathBuf> = judges.iter().filter(|j| !fwd.contains(j)).cloned().collect();
-            if !judge_only.is_empty() {
-                args.extend(["--judge".into(), join(&judge_only)]);
-            }
-            args.extend(["--base".into(), s(&ctx.base_controller), "--out".into(), s(&controller)]);
-            Action::Exe(args)
-        } else {
-            let (f, i, c, b) = (
-                fwd[0].clone(),
-                inv[0].clone(),
-                controller.clone(),
-                ctx.base_controller.clone(),
-            );
-            Action::Local(
-                format!(
-                    "recipe.tune = false: {} with model_fwd = {}, model_inv = {} → {}",
-                    b.display(),
-                    f.display(),
-                    i.display(),
-                    c.display()
-                ),
-                Box::new(move || controller_from_base(&b, &f, &i, &c)),
-            )
-        };
-        runner.step(
-            "tune",
-            action,
-            &base_text,
-            &trained,
-            &[controller.clone(), controller.with_extension("tune.json")],
-        )?;
+            runner.step(
+                "collect-closed-loop",
+                Action::Exe(collect2),
+                &collect_inputs,
+                &["collect".into(), tune_step.clone()],
+                std::slice::from_ref(&data2),
+            )?;
+            (controller, tune_step) = train_and_tune(&mut runner, &data2, "collect-closed-loop", "-closed-loop")?;
+        }
         // 5. Evaluate on the unseen trajectories.
         let eval = dir.join("eval");
         let summary = eval.join("summary.json");
         // `bowden evaluate` of `controller` on the unit's plant, the camera at `camera_fps`
         // (default: one frame per held point).
-        let evaluate = |controller: &Path, camera_fps: Option<f64>, report: &Path, summary: &Path| {
-            let mut args: Vec<String> = vec![
-                "evaluate".into(),
-                "--plant".into(),
-                s(&plant),
-                "--controller-config".into(),
-                s(controller),
-            ];
-            if let Some(f) = camera_fps {
-                args.extend(["--camera-fps".into(), f.to_string()]);
-            }
-            args.extend([
-                "--repeats".into(),
-                r.repeats.to_string(),
-                "--trajectories".into(),
-                r.trajectories.join(","),
-                "--controllers".into(),
-                r.controllers.join(","),
-            ]);
-            if let Some(n) = r.max_points {
-                args.extend(["--max-points".into(), n.to_string()]);
-            }
-            args.extend(["--report".into(), s(report), "--json-out".into(), s(summary)]);
-            args
-        };
-        let args = evaluate(&controller, None, &eval, &summary);
+        let evaluate =
+            |controller: &Path, camera_fps: Option<f64>, set: Option<&Path>, report: &Path, summary: &Path| {
+                let mut args: Vec<String> = vec![
+                    "evaluate".into(),
+                    "--plant".into(),
+                    s(&plant),
+                    "--controller-config".into(),
+                    s(controller),
+                ];
+                if let Some(f) = camera_fps {
+                    args.extend(["--camera-fps".into(), f.to_string()]);
+                }
+                args.extend([
+                    "--repeats".into(),
+                    r.repeats.to_string(),
+                    "--trajectories".into(),
+                    r.trajectories.join(","),
+                    "--controllers".into(),
+                    r.controllers.join(","),
+                ]);
+                if let Some(d) = set {
+                    args.extend(["--trajectories-dir".into(), s(d)]);
+                }
+                if let Some(n) = r.max_points {
+                    args.extend(["--max-points".into(), n.to_string()]);
+                }
+                args.extend(["--report".into(), s(report), "--json-out".into(), s(summary)]);
+                args
+            };
+        let args = evaluate(&controller, None, None, &eval, &summary);
         let eval_inputs = r
             .trajectories
             .iter()
@@ -1082,7 +1189,7 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
             "evaluate",
             Action::Exe(args),
             &eval_inputs,
-            &["tune".into()],
+            std::slice::from_ref(&tune_step),
             &[summary.clone(), eval.clone()],
         )?;
         // 6. The same controller with vision feedback, the camera fast enough to give it frames.
@@ -1101,18 +1208,59 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
                     Box::new(move || controller_with_feedback(&c, &f, &o)),
                 ),
                 &read_text(fb_file),
-                &["tune".into()],
+                std::slice::from_ref(&tune_step),
                 std::slice::from_ref(&fb_controller),
             )?;
             let eval_fb = dir.join("eval-feedback");
             let summary_fb = eval_fb.join("summary.json");
             runner.step(
                 "evaluate-feedback",
-                Action::Exe(evaluate(&fb_controller, Some(fb.camera_fps), &eval_fb, &summary_fb)),
+                Action::Exe(evaluate(
+                    &fb_controller,
+                    Some(fb.camera_fps),
+                    None,
+                    &eval_fb,
+                    &summary_fb,
+                )),
                 &eval_inputs,
                 &["feedback".into()],
                 &[summary_fb.clone(), eval_fb.clone()],
             )?;
+        }
+        // 7. Both again on every further set of paths (e.g. at the paper's magnitude).
+        for (name, set_dir) in &ctx.trajectory_sets {
+            let set_inputs = r
+                .trajectories
+                .iter()
+                .fold(format!("{text}{pipeline_text}{}", read_text(&controller)), |acc, t| {
+                    acc + &read_text(&set_dir.join(format!("{t}.toml")))
+                });
+            let eval_set = dir.join(format!("eval-{name}"));
+            let summary_set = eval_set.join("summary.json");
+            runner.step(
+                &format!("evaluate-{name}"),
+                Action::Exe(evaluate(&controller, None, Some(set_dir), &eval_set, &summary_set)),
+                &set_inputs,
+                std::slice::from_ref(&tune_step),
+                &[summary_set.clone(), eval_set.clone()],
+            )?;
+            if let Some(fb) = &r.feedback {
+                let eval_fb = dir.join(format!("eval-feedback-{name}"));
+                let summary_fb = eval_fb.join("summary.json");
+                runner.step(
+                    &format!("evaluate-feedback-{name}"),
+                    Action::Exe(evaluate(
+                        &dir.join("controller-feedback.toml"),
+                        Some(fb.camera_fps),
+                        Some(set_dir),
+                        &eval_fb,
+                        &summary_fb,
+                    )),
+                    &set_inputs,
+                    &["feedback".into()],
+                    &[summary_fb.clone(), eval_fb.clone()],
+                )?;
+            }
         }
         unit_rows(dir, r).map_err(|e| local_fail("report", format!("{e:#}")))
     })();
@@ -1278,7 +1426,20 @@ fn unit_rows(dir: &Path, r: &Recipe) -> Result<Vec<Row>> {
     if r.feedback.is_some() {
         rows.extend(rows_from_summary(&dir.join("eval-feedback/summary.json"), r, "+fb")?);
     }
+    for name in r.trajectory_sets.keys() {
+        let path = dir.join(format!("eval-{name}/summary.json"));
+        rows.extend(rows_from_summary(&path, r, &set_name("", name))?);
+        if r.feedback.is_some() {
+            let path = dir.join(format!("eval-feedback-{name}/summary.json"));
+            rows.extend(rows_from_summary(&path, r, &set_name("+fb", name))?);
+        }
+    }
     Ok(rows)
+}
+
+/// The name of controller `c` evaluated on the paths of trajectory set `set`.
+fn set_name(c: &str, set: &str) -> String {
+    format!("{c}@{set}")
 }
 
 /// The rows of one evaluation; `suffix` is appended to the calibrated controllers' names
@@ -1425,7 +1586,13 @@ fn calibrated(r: &Recipe) -> Vec<String> {
     } else {
         Vec::new()
     };
-    ff.into_iter().chain(fb).collect()
+    let base: Vec<String> = ff.into_iter().chain(fb).collect();
+    let sets: Vec<String> = r
+        .trajectory_sets
+        .keys()
+        .flat_map(|set| base.iter().map(move |c| set_name(c, set)))
+        .collect();
+    base.into_iter().chain(sets).collect()
 }
 
 fn summarise(units: &[&UnitOutcome], families: &[Family], r: &Recipe) -> Vec<FamilySummary> {
@@ -1571,7 +1738,9 @@ fn goals(units: &[&UnitOutcome], r: &Recipe) -> Vec<GoalCheck> {
 fn best_mode(units: &[&UnitOutcome], r: &Recipe, feed_forward_only: bool) -> Option<String> {
     calibrated(r)
         .into_iter()
-        .filter(|c| !(feed_forward_only && c.ends_with("+fb")))
+        // The shipped paths' controllers only: other sets are reported beside them.
+        .filter(|c| !c.contains('@'))
+        .filter(|c| !(feed_forward_only && c.contains("+fb")))
         .filter_map(|c| {
             let v = units
                 .iter()
@@ -1600,9 +1769,9 @@ fn timing(units: &[UnitOutcome]) -> Vec<TimingRow> {
                     cpu_seconds: v.iter().map(|s| s.cpu_seconds).sum(),
                 })
             };
-            let collect = sum(&|s| s == "collect");
+            let collect = sum(&|s| s.starts_with("collect"));
             let train = sum(&|s| s.starts_with("train-"));
-            let tune = sum(&|s| s == "tune" || s == "feedback");
+            let tune = sum(&|s| s.starts_with("tune") || s == "feedback");
             let evaluate = sum(&|s| s.starts_with("evaluate"));
             TimingRow {
                 family: u.family.clone(),
@@ -1745,7 +1914,7 @@ fn markdown(rep: &Report) -> String {
         "1. plant: the family's plant file with `[variation] unit = N`\n\
          2. `bowden collect --samples {} --seed {} --excitation {}`\n\
          3. `bowden train --seq-len {} --epochs {}{}` for {} × forward, inverse{}{}\n\
-         4. {}\n\
+         4. {}\n{}\
          5. `bowden evaluate --repeats {} --trajectories {} --controllers {}{}` on the unit's plant\n{}",
         r.samples,
         rep.seed,
@@ -1784,6 +1953,14 @@ fn markdown(rep: &Report) -> String {
                 r.base_controller.display()
             )
         },
+        r.closed_loop.as_ref().map_or_else(String::new, |cl| format!(
+            "4b. a second round under that controller: `bowden collect --samples {} --seed {} --excitation {} \
+             --controller-config <4.> --extend <2.>` (its configurations are targets; the commands the \
+             compensator sent are recorded), then 3. and 4. again on the whole\n",
+            cl.samples,
+            rep.seed + 1,
+            cl.excitation
+        )),
         r.repeats,
         r.trajectories.join(","),
         r.controllers.join(","),
@@ -1793,7 +1970,17 @@ fn markdown(rep: &Report) -> String {
              table of `{}`, `bowden evaluate --camera-fps {}` (frames during each held point)\n",
             shown(&rep.project_dir, &f.config),
             f.camera_fps
-        )),
+        )) + &r
+            .trajectory_sets
+            .iter()
+            .map(|(name, d)| {
+                format!(
+                    "7. 5.{} again on the paths of `{}` (`--trajectories-dir`), reported as controllers `…@{name}`\n",
+                    if r.feedback.is_some() { " and 6." } else { "" },
+                    d.display()
+                )
+            })
+            .collect::<String>(),
     );
     let _ = writeln!(out, "## Families\n");
     let _ = writeln!(
@@ -2447,6 +2634,21 @@ fn transfer(a: TransferArgs) -> Result<()> {
             );
         }
     }
+    let mut trajectory_sets = Vec::new();
+    for (name, dir) in &recipe.trajectory_sets {
+        let d = resolve(dir, &cfg_dir, root.as_deref());
+        for t in &recipe.trajectories {
+            let f = d.join(format!("{t}.toml"));
+            if !f.is_file() {
+                bail!(
+                    "{}: recipe.trajectory_sets.{name}: no trajectory `{t}` ({})",
+                    a.config.display(),
+                    f.display()
+                );
+            }
+        }
+        trajectory_sets.push((name.clone(), d));
+    }
     // Families, named.
     let mut families = Vec::new();
     for (i, f) in cfg.families.iter().enumerate() {
@@ -2597,6 +2799,7 @@ fn transfer(a: TransferArgs) -> Result<()> {
             threads,
             base_controller,
             feedback_config,
+            trajectory_sets: trajectory_sets.clone(),
             config_file: config_file.clone(),
             mp: MultiProgress::new(),
         };
@@ -2904,6 +3107,44 @@ heldout_units = [1, 2]
         assert!(!g[1].met && g[1].below_60 == 0, "{:?}", g[1]);
         assert_eq!(best_mode(&[&a, &b], &r, false).as_deref(), Some("paper+fb"));
         assert_eq!(best_mode(&[&a, &b], &r, true).as_deref(), Some("paper"));
+    }
+
+    #[test]
+    fn further_path_sets_are_controllers_of_their_own_but_never_the_headline() {
+        let with_sets = OK.replace(
+            "[[family]]",
+            "trajectory_sets = { large = \"configs/trajectories/large\" }\n\
+             [recipe.feedback]\nconfig = \"configs/controller-feedback.toml\"\ncamera_fps = 10.0\n[[family]]",
+        );
+        let r = cfg(&with_sets).unwrap().recipe;
+        assert_eq!(calibrated(&r), ["paper", "paper+fb", "paper@large", "paper+fb@large"]);
+        let e = cfg(&with_sets.replace("large =", "\"../up\" =")).unwrap_err();
+        assert!(e.contains("recipe.trajectory_sets"), "{e}");
+        // The large paths' goals are checked on their own rows; the best mode (the plot, the
+        // headline) comes from the shipped paths only, however well the others did.
+        let a = unit(
+            "a",
+            1,
+            vec![
+                row("paper", "circle", 50.0),
+                row("paper+fb", "circle", 70.0),
+                row("paper@large", "circle", 80.0),
+                row("paper+fb@large", "circle", 95.0),
+            ],
+        );
+        let g = goals(&[&a], &r);
+        let met: Vec<(&str, bool)> = g.iter().map(|g| (g.controller.as_str(), g.met)).collect();
+        assert_eq!(
+            met,
+            [
+                ("paper", false),
+                ("paper+fb", false),
+                ("paper@large", true),
+                ("paper+fb@large", true)
+            ]
+        );
+        assert_eq!(best_mode(&[&a], &r, false).as_deref(), Some("paper+fb"));
+        assert_eq!(best_mode(&[&a], &r, true).as_deref(), Some("paper"));
     }
 
     #[test]
