@@ -30,9 +30,9 @@ pub struct CollectArgs {
     /// Random configurations (eq. 16's endpoints). The default 4,000 with `mixed` gives about
     /// 29,400 commands, 245 minutes on a robot at 0.5 s per command, as long as the paper's
     /// collection (1,802 eq. (16) configurations, 30,707 commands, 256 minutes): enough for the
-    /// LSTM models, whose inverse `tune` then chooses on every tuning unit; 1,500 (≈ 11,000
-    /// commands, 92 minutes) is the least that held up with the TCN pair alone
-    /// (docs/results/data-study/).
+    /// LSTM models, whose inverse `tune` then chose on 5 of the 6 held-out units of `bench
+    /// transfer`; 1,500 (≈ 11,000 commands, 92 minutes) is the least that held up with the TCN
+    /// pair alone (docs/results/data-study/).
     #[arg(long, default_value_t = 4000)]
     pub samples: usize,
     /// Seed of the random configurations, the excitation's jumps and dither, and the run's noise.
