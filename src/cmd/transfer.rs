@@ -3066,12 +3066,19 @@ heldout_units = [1, 2]
         }
     }
 
+    /// `OK` with `recipe_lines` added to `[recipe]` and a `[recipe.feedback]` table.
+    fn ok_with_feedback(recipe_lines: &str) -> String {
+        OK.replace(
+            "[[family]]",
+            &format!(
+                "{recipe_lines}[recipe.feedback]\nconfig = \"configs/controller-feedback.toml\"\ncamera_fps = 10.0\n[[family]]"
+            ),
+        )
+    }
+
     #[test]
     fn feedback_controllers_are_reported_and_judged_by_the_goals() {
-        let with_fb = OK.replace(
-            "[[family]]",
-            "[recipe.feedback]\nconfig = \"configs/controller-feedback.toml\"\ncamera_fps = 10.0\n[[family]]",
-        );
+        let with_fb = ok_with_feedback("");
         let r = cfg(&with_fb).unwrap().recipe;
         assert_eq!(calibrated(&r), ["paper", "paper+fb"]);
         let e = cfg(&with_fb.replace("camera_fps = 10.0", "camera_fps = 0.0")).unwrap_err();
@@ -3111,11 +3118,7 @@ heldout_units = [1, 2]
 
     #[test]
     fn further_path_sets_are_controllers_of_their_own_but_never_the_headline() {
-        let with_sets = OK.replace(
-            "[[family]]",
-            "trajectory_sets = { large = \"configs/trajectories/large\" }\n\
-             [recipe.feedback]\nconfig = \"configs/controller-feedback.toml\"\ncamera_fps = 10.0\n[[family]]",
-        );
+        let with_sets = ok_with_feedback("trajectory_sets = { large = \"configs/trajectories/large\" }\n");
         let r = cfg(&with_sets).unwrap().recipe;
         assert_eq!(calibrated(&r), ["paper", "paper+fb", "paper@large", "paper+fb@large"]);
         let e = cfg(&with_sets.replace("large =", "\"../up\" =")).unwrap_err();
