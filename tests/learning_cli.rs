@@ -231,3 +231,121 @@ fn sweep_summarises_and_resumes() {
     assert!(second.contains("16 runs, 16 reused"), "{second}");
     assert_eq!(md, std::fs::read_to_string(tmp.path().join("sweep/sweep.md")).unwrap());
 }
+
+/// `bench train --pytorch`: PyTorch's epoch is timed by the given interpreter in the same
+/// run (here a stand-in that answers like the script), the ratio is taken against it, a bf16
+/// run also asks for autocast's epoch, and an interpreter that is missing or has no torch is
+/// named. `train --precision bf16` records the precision in the report.
+#[test]
+fn bench_train_times_pytorch_in_the_same_run_and_train_records_bf16() {
+    use std::os::unix::fs::PermissionsExt;
+    let tmp = tempfile::tempdir().unwrap();
+    let write_exe = |name: &str, body: &str| {
+        let p = tmp.path().join(name);
+        std::fs::write(&p, body).unwrap();
+        std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o755)).unwrap();
+        p.display().to_string()
+    };
+    let fake = write_exe(
+        "fake-python",
+        "#!/bin/sh\ncase \"$*\" in\n  *--bf16*) echo 'lstm epoch 0: 2 s'; echo '{\"median_seconds\": 2.0}';;\n  \
+         *) echo '{\"median_seconds\": 3.5}';;\nesac\n",
+    );
+    let stdout = ok(&bowden(&[
+        "bench",
+        "train",
+        "--arch",
+        "lstm",
+        "--windows",
+        "64",
+        "--seq-len",
+        "12",
+        "--epochs",
+        "1",
+        "--precision",
+        "bf16",
+        "--pytorch",
+        &fake,
+        "--json",
+    ]));
+    let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let r = &v[0];
+    assert_eq!(r["options"]["precision"], "bf16");
+    assert_eq!(r["pytorch_measured"], true);
+    assert_eq!(r["pytorch_seconds"], 3.5);
+    assert_eq!(r["pytorch_bf16_seconds"], 2.0);
+    let median = r["median_seconds"].as_f64().unwrap();
+    assert!((r["speedup_vs_pytorch"].as_f64().unwrap() - 3.5 / median).abs() < 1e-9);
+    assert!((r["speedup_vs_pytorch_bf16"].as_f64().unwrap() - 2.0 / median).abs() < 1e-9);
+
+    let no_torch = write_exe(
+        "python-without-torch",
+        "#!/bin/sh\necho \"ModuleNotFoundError: No module named 'torch'\" >&2\nexit 1\n",
+    );
+    let bench = |python: &str| {
+        bowden(&[
+            "bench",
+            "train",
+            "--arch",
+            "tcn",
+            "--windows",
+            "32",
+            "--seq-len",
+            "12",
+            "--epochs",
+            "1",
+            "--pytorch",
+            python,
+        ])
+    };
+    fails_with(&bench(&no_torch), &["--pytorch", "No module named 'torch'"]);
+    let missing = tmp.path().join("no-such-python").display().to_string();
+    fails_with(&bench(&missing), &["--pytorch", "no-such-python"]);
+
+    let data = synthetic_dir(&tmp.path().join("data"), 400);
+    let model = tmp.path().join("lstm.onnx").display().to_string();
+    let train = |precision: &str| {
+        ok(&bowden(&[
+            "train",
+            "--arch",
+            "lstm",
+            "--direction",
+            "forward",
+            "--seq-len",
+            "8",
+            "--epochs",
+            "1",
+            "--data",
+            &data,
+            "--out",
+            &model,
+            "--force",
+            "--precision",
+            precision,
+        ]))
+    };
+    let report = || -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(tmp.path().join("lstm.report.json")).unwrap()).unwrap()
+    };
+    train("bf16");
+    assert_eq!(report()["config"]["precision"], "bf16");
+    // f32 is the default and is not written, so reports read as before the option existed.
+    train("f32");
+    assert!(report()["config"].get("precision").is_none());
+    fails_with(
+        &bowden(&[
+            "train",
+            "--arch",
+            "lstm",
+            "--direction",
+            "forward",
+            "--data",
+            &data,
+            "--out",
+            &model,
+            "--precision",
+            "f16",
+        ]),
+        &["--precision", "f16"],
+    );
+}

@@ -6,7 +6,7 @@ use bowden_learning::bench::{bench_train, BenchOptions};
 use bowden_learning::dataset::{import_csv, import_npy, AngleUnit, ImportOptions};
 use bowden_learning::report::train_to_files;
 use bowden_learning::sweep::{execute_runs, merge_sweep, plan_sweep, run_sweep, Selection, SweepConfig, SweepPlan};
-use bowden_learning::{Arch, Backend, Direction, PhySource, SplitConfig, TcnBlock, TrainConfig};
+use bowden_learning::{Arch, Backend, Direction, PhySource, Precision, SplitConfig, TcnBlock, TrainConfig};
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
@@ -116,9 +116,15 @@ pub struct TrainArgs {
     /// Worker threads (results do not depend on it).
     #[arg(long, default_value_t = 2)]
     threads: usize,
+    /// f32, or bf16: the LSTM's recurrent products with bf16 operands and f32 sums (about
+    /// twice as fast on CPUs with AVX-512 BF16; weights, validation and export stay f32).
+    #[arg(long, default_value = "f32", value_parser = super::choice(PRECISIONS), ignore_case = true)]
+    precision: String,
     #[command(flatten)]
     split: SplitArgs,
 }
+
+const PRECISIONS: &[&str] = &["f32", "bf16"];
 
 #[derive(Args, Debug)]
 pub struct SweepArgs {
@@ -255,6 +261,13 @@ pub struct BenchTrainArgs {
     /// Input sequence length L.
     #[arg(long, default_value_t = 80)]
     seq_len: usize,
+    /// f32, or bf16 (mixed precision for the LSTM's recurrent products).
+    #[arg(long, default_value = "f32", value_parser = super::choice(PRECISIONS), ignore_case = true)]
+    precision: String,
+    /// A Python interpreter with torch: times PyTorch's epoch of the same networks and
+    /// shapes in this run, just before bowden's (with bf16 also under autocast(bfloat16)).
+    #[arg(long)]
+    pytorch: Option<PathBuf>,
     /// Print JSON instead of a table.
     #[arg(long)]
     json: bool,
@@ -310,6 +323,11 @@ pub fn run(c: Command) -> Result<()> {
                 .map_err(anyhow::Error::msg)
                 .context("--backend")?;
             cfg.threads = a.threads;
+            cfg.precision = a
+                .precision
+                .parse::<Precision>()
+                .map_err(anyhow::Error::msg)
+                .context("--precision")?;
             let (split, phy) = a.split.parse()?;
             let data = super::dataset_dir("--data", &a.data)?;
             let (json, svg) = bowden_learning::report::sidecar_paths(&a.out);
@@ -558,6 +576,7 @@ pub fn bench(c: BenchCommand) -> Result<()> {
                 some => parse_list(some, "arch")?,
             };
             let backend: Backend = a.backend.parse().map_err(anyhow::Error::msg).context("--backend")?;
+            let precision: Precision = a.precision.parse().map_err(anyhow::Error::msg).context("--precision")?;
             let mut results = Vec::new();
             for arch in archs {
                 let mut o = BenchOptions::paper(arch);
@@ -566,14 +585,37 @@ pub fn bench(c: BenchCommand) -> Result<()> {
                 o.backend = backend;
                 o.windows = a.windows;
                 o.seq_len = a.seq_len;
-                let r = bench_train(&o).with_context(|| format!("bench train --arch {arch}"))?;
+                o.precision = precision;
+                // PyTorch first, then bowden, back to back on the same machine.
+                let torch = match &a.pytorch {
+                    Some(python) => {
+                        let bf16 = precision == Precision::Bf16;
+                        let f = bowden_learning::bench::pytorch_epoch_seconds(python, &o, false)
+                            .with_context(|| format!("--pytorch: timing PyTorch's {arch} epoch"))?;
+                        let b = if bf16 {
+                            Some(
+                                bowden_learning::bench::pytorch_epoch_seconds(python, &o, true)
+                                    .with_context(|| format!("--pytorch: timing PyTorch's bf16 {arch} epoch"))?,
+                            )
+                        } else {
+                            None
+                        };
+                        Some((f, b))
+                    }
+                    None => None,
+                };
+                let mut r = bench_train(&o).with_context(|| format!("bench train --arch {arch}"))?;
+                if let Some((f, b)) = torch {
+                    r.set_pytorch_measured(f, b);
+                }
                 if !a.json {
                     let round = |v: &[f64]| v.iter().map(|s| (s * 1000.0).round() / 1000.0).collect::<Vec<_>>();
                     println!(
-                        "{:8} {:6} L={} {} windows, batch {}, {} thread(s), {}: {:.3} s/epoch median, {:.3} min, \
-                         wall {:?} s, CPU {:?} s, load avg {}{}",
+                        "{:8} {:6} {} L={} {} windows, batch {}, {} thread(s), {}: {:.3} s/epoch median, {:.3} min, \
+                         wall {:?} s, CPU {:?} s, load avg {}{}{}",
                         arch.name(),
                         format!("{backend:?}").to_lowercase(),
+                        precision,
                         o.seq_len,
                         o.windows,
                         o.batch_size,
@@ -585,7 +627,18 @@ pub fn bench(c: BenchCommand) -> Result<()> {
                         round(&r.epoch_cpu_seconds),
                         r.load_average_1min.map_or("?".into(), |l| format!("{l:.2}")),
                         match (r.pytorch_seconds, r.speedup_vs_pytorch) {
-                            (Some(p), Some(s)) => format!("; PyTorch (2 threads) {p} s/epoch → {s:.2}× its speed"),
+                            (Some(p), Some(s)) if r.pytorch_measured => format!(
+                                "; PyTorch f32 ({} threads, measured in this run) {p:.3} s/epoch → {s:.2}× its speed",
+                                o.threads
+                            ),
+                            (Some(p), Some(s)) => format!(
+                                "; PyTorch f32 (2 threads, the issue's machine; --pytorch measures here) {p} s/epoch → \
+                                 {s:.2}× its speed"
+                            ),
+                            _ => String::new(),
+                        },
+                        match (r.pytorch_bf16_seconds, r.speedup_vs_pytorch_bf16) {
+                            (Some(p), Some(s)) => format!("; PyTorch autocast bf16 {p:.3} s/epoch → {s:.2}×"),
                             _ => String::new(),
                         }
                     );

@@ -94,60 +94,66 @@ pub fn lstm_parts() {
     };
     let d = LstmDims { t: 80, j: 5, h: 128 };
     let b = 16;
-    let mut prep = LstmPrepared::default();
-    prep.prepare(&d, &params, &idx);
-    let mut work = LstmWork::new(&d, b);
-    for (i, v) in work.xt.iter_mut().enumerate() {
-        *v = ((i % 7) as f32 - 3.0) * 0.3;
-    }
-    // Best of 10 rounds of 5 (a shared machine's noise only ever adds time).
-    let mut best_f = f64::INFINITY;
-    let mut best_b = f64::INFINITY;
-    let mut grad = vec![0.0f32; layout.total];
-    let dh = vec![0.01f32; b * 128];
-    for _round in 0..10 {
-        let t0 = Instant::now();
-        for _ in 0..5 {
-            lstm::forward(&d, &prep, b, &mut work);
+    for mixed in [false, true] {
+        let mut prep = LstmPrepared::default();
+        prep.prepare(&d, &params, &idx, mixed);
+        let mut work = LstmWork::new(&d, b);
+        for (i, v) in work.xt.iter_mut().enumerate() {
+            *v = ((i % 7) as f32 - 3.0) * 0.3;
         }
-        best_f = best_f.min(t0.elapsed().as_secs_f64() / 5.0);
-        let t0 = Instant::now();
-        for _ in 0..5 {
-            grad.fill(0.0);
-            let (lo, hi) = grad.split_at_mut(idx.w_hh);
-            let (w_hh, hi) = hi.split_at_mut(idx.b_ih - idx.w_hh);
-            let (b_ih, b_hh) = hi.split_at_mut(idx.b_hh - idx.b_ih);
-            lstm::backward(
-                &d,
-                &params,
-                &idx,
-                b,
-                &dh,
-                &mut work,
-                LstmGrads {
-                    w_ih: &mut lo[idx.w_ih..idx.w_ih + 512 * 5],
-                    w_hh,
-                    b_ih,
-                    b_hh: &mut b_hh[..512],
-                },
-                false,
-            );
+        // Best of 10 rounds of 5 (a shared machine's noise only ever adds time).
+        let mut best_f = f64::INFINITY;
+        let mut best_b = f64::INFINITY;
+        let mut grad = vec![0.0f32; layout.total];
+        let dh = vec![0.01f32; b * 128];
+        for _round in 0..10 {
+            let t0 = Instant::now();
+            for _ in 0..5 {
+                lstm::forward(&d, &prep, b, &mut work, mixed);
+            }
+            best_f = best_f.min(t0.elapsed().as_secs_f64() / 5.0);
+            let t0 = Instant::now();
+            for _ in 0..5 {
+                grad.fill(0.0);
+                let (lo, hi) = grad.split_at_mut(idx.w_hh);
+                let (w_hh, hi) = hi.split_at_mut(idx.b_ih - idx.w_hh);
+                let (b_ih, b_hh) = hi.split_at_mut(idx.b_hh - idx.b_ih);
+                lstm::backward(
+                    &d,
+                    &params,
+                    &idx,
+                    &prep,
+                    b,
+                    &dh,
+                    &mut work,
+                    LstmGrads {
+                        w_ih: &mut lo[idx.w_ih..idx.w_ih + 512 * 5],
+                        w_hh,
+                        b_ih,
+                        b_hh: &mut b_hh[..512],
+                    },
+                    false,
+                    mixed,
+                );
+            }
+            best_b = best_b.min(t0.elapsed().as_secs_f64() / 5.0);
         }
-        best_b = best_b.min(t0.elapsed().as_secs_f64() / 5.0);
+        println!(
+            "lstm {} forward b=16: {:.3} ms, backward {:.3} ms (best of 10)",
+            if mixed { "bf16" } else { "f32" },
+            best_f * 1e3,
+            best_b * 1e3
+        );
+        let t0 = Instant::now();
+        for _ in 0..200 {
+            prep.prepare(&d, &params, &idx, mixed);
+        }
+        println!(
+            "prepare (W transposes{}): {:.1} us",
+            if mixed { ", bf16 packs" } else { "" },
+            t0.elapsed().as_secs_f64() / 200.0 * 1e6
+        );
     }
-    println!(
-        "lstm forward b=16: {:.3} ms, backward {:.3} ms (best of 10)",
-        best_f * 1e3,
-        best_b * 1e3
-    );
-    let t0 = Instant::now();
-    for _ in 0..200 {
-        prep.prepare(&d, &params, &idx);
-    }
-    println!(
-        "prepare (W transposes): {:.1} us",
-        t0.elapsed().as_secs_f64() / 200.0 * 1e6
-    );
 }
 
 pub fn sigmoid_speed() {

@@ -28,6 +28,7 @@ pub mod windows;
 
 pub use arch::{tcn_num_blocks, Arch, Direction, ModelSpec, TcnBlock};
 pub use dataset::{AngleUnit, Dataset, DatasetError, ImportOptions, Manifest};
+pub use kernels::Precision;
 pub use onnx::{ModelFile, OnnxError, TractModel};
 pub use report::{train_to_files, LearnError, TrainReport};
 pub use support::DataSupport;

@@ -143,3 +143,53 @@ fn shards_sum_to_the_full_batch_gradient() {
         assert!((a - b).abs() <= 1e-5 * gmax);
     }
 }
+
+/// Mixed precision (bf16 operands, f32 sums in the LSTM's recurrent products) against the
+/// f32 kernels on the same batch: the forward pass outside training is f32 in both (same
+/// bits), the loss and every gradient tensor agree to bf16's precision, and they are not the
+/// f32 numbers (so the bf16 path did run).
+#[test]
+fn lstm_mixed_precision_gradients_follow_f32() {
+    use bowden_learning::kernels::Precision;
+    for (spec, b, seed) in [
+        (ModelSpec::new(Arch::Lstm, 80, 5, TcnBlock::ReluLinear), 16, 21),
+        (ModelSpec::new(Arch::Lstm, 9, 3, TcnBlock::ReluLinear), 5, 22),
+        (ModelSpec::new(Arch::TcnLstm, 12, 5, TcnBlock::ReluLinear), 4, 23),
+    ] {
+        let tag = format!("{} L={} b={b}", spec.arch, spec.seq_len);
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let params = spec.init_params(seed);
+        let x = random(b * spec.seq_len * spec.joints, 1.5, &mut rng);
+        let y = random(b * spec.joints, 1.0, &mut rng);
+        let scale = 2.0 / (b * spec.joints) as f32;
+        let run = |precision: Precision| {
+            let net = Net::new(spec).with_precision(precision);
+            let prep = net.prepared(&params);
+            let mut ws = net.workspace(b);
+            let mut out = vec![0.0; b * spec.joints];
+            net.forward(&params, &prep, &x, b, &mut ws, &mut out);
+            let mut grad = vec![0.0; net.param_count()];
+            let sse = net.forward_backward(&params, &prep, &x, &y, b, scale, &mut ws, &mut grad);
+            (out, sse, grad)
+        };
+        let (out32, sse32, g32) = run(Precision::F32);
+        let (out16, sse16, g16) = run(Precision::Bf16);
+        assert_eq!(out32, out16, "{tag}: the forward pass outside training must stay f32");
+        assert!(
+            ((sse16 - sse32) / sse32).abs() < 1e-2,
+            "{tag}: loss {sse16} vs f32 {sse32}"
+        );
+        assert_ne!(g32, g16, "{tag}: the bf16 path gave the f32 gradient bit for bit");
+        for t in &spec.layout().tensors {
+            let r = t.range();
+            let norm = |g: &[f32]| g.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
+            let diff: Vec<f32> = g16[r.clone()].iter().zip(&g32[r.clone()]).map(|(a, b)| a - b).collect();
+            let rel = norm(&diff) / norm(&g32[r.clone()]).max(1e-12);
+            assert!(
+                rel < 2e-2,
+                "{tag}: gradient of {} differs by {rel:.4} (relative L2)",
+                t.name
+            );
+        }
+    }
+}

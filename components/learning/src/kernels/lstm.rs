@@ -3,6 +3,7 @@
 //! against the recurrent weights plus one fused elementwise cell; the weight gradients of
 //! all steps are one GEMM each after the backward sweep.
 
+use super::bf16::{gemm_bf16_acc, pack_cols, pack_rows, pairs, PackedA};
 use super::gemm::{gemm_acc, StridedA};
 use super::simd::{sigmoid_f32, simd_fn, tanh_f32};
 
@@ -46,6 +47,10 @@ pub struct LstmWork {
     dwt: Vec<f32>,
     colsum: Vec<f32>,
     zeros: Vec<f32>,
+    /// Mixed precision only: the A and B operands of one product packed as bf16 pairs
+    /// (sized on first use, then reused).
+    pack_a: Vec<u32>,
+    pack_b: Vec<u32>,
 }
 
 impl LstmWork {
@@ -65,6 +70,8 @@ impl LstmWork {
             dwt: vec![0.0; j * 4 * h],
             colsum: vec![0.0; 4 * h],
             zeros: vec![0.0; cap * h],
+            pack_a: Vec::new(),
+            pack_b: Vec::new(),
         }
     }
 
@@ -84,6 +91,10 @@ pub struct LstmPrepared {
     pub rt: Vec<f32>,
     /// b_ih + b_hh, `[4H]`.
     pub bias: Vec<f32>,
+    /// Mixed precision: W_hhᵀ and W_hh as the B operands of the recurrent products, packed
+    /// as bf16 pairs ([`super::bf16`]); empty in f32.
+    pub rt_bf16: Vec<u32>,
+    pub r_bf16: Vec<u32>,
 }
 
 /// `dst` (`[cols][rows]`) = `src` (`[rows][cols]`)ᵀ.
@@ -105,13 +116,21 @@ pub fn transpose(src: &[f32], rows: usize, cols: usize, dst: &mut Vec<f32>) {
 }
 
 impl LstmPrepared {
-    pub fn prepare(&mut self, d: &LstmDims, params: &[f32], idx: &LstmParamIdx) {
+    /// Refreshes the copies from `params`; `mixed` also packs the bf16 operands.
+    pub fn prepare(&mut self, d: &LstmDims, params: &[f32], idx: &LstmParamIdx, mixed: bool) {
         let g = 4 * d.h;
         transpose(&params[idx.w_ih..idx.w_ih + g * d.j], g, d.j, &mut self.wt_ih);
         transpose(&params[idx.w_hh..idx.w_hh + g * d.h], g, d.h, &mut self.rt);
         self.bias.resize(g, 0.0);
         for i in 0..g {
             self.bias[i] = params[idx.b_ih + i] + params[idx.b_hh + i];
+        }
+        if mixed {
+            pack_rows(d.h, g, &self.rt, g, &mut self.rt_bf16);
+            pack_rows(g, d.h, &params[idx.w_hh..idx.w_hh + g * d.h], d.h, &mut self.r_bf16);
+        } else {
+            self.rt_bf16.clear();
+            self.r_bf16.clear();
         }
     }
 }
@@ -193,8 +212,9 @@ simd_fn! {
     }
 }
 
-/// Forward over `b` rows whose inputs are already in `work.xt` (`[T][b][J]`).
-pub fn forward(d: &LstmDims, prep: &LstmPrepared, b: usize, work: &mut LstmWork) {
+/// Forward over `b` rows whose inputs are already in `work.xt` (`[T][b][J]`). `mixed`: the
+/// recurrent products in bf16 with f32 sums (`prep` must have been prepared with it).
+pub fn forward(d: &LstmDims, prep: &LstmPrepared, b: usize, work: &mut LstmWork, mixed: bool) {
     let (t, j, h) = (d.t, d.j, d.h);
     let g4 = 4 * h;
     let gates = &mut work.g[..t * b * g4];
@@ -219,7 +239,15 @@ pub fn forward(d: &LstmDims, prep: &LstmPrepared, b: usize, work: &mut LstmWork)
     work.hs[..b * h].fill(0.0);
     for step in 0..t {
         let gs = &mut work.g[step * b * g4..(step + 1) * b * g4];
-        if step > 0 {
+        if step > 0 && mixed {
+            pack_cols(b, h, &work.hs[step * b * h..(step + 1) * b * h], h, &mut work.pack_a);
+            let a = PackedA {
+                data: &work.pack_a,
+                rs: pairs(h),
+                ps: 1,
+            };
+            gemm_bf16_acc(b, g4, pairs(h), a, &prep.rt_bf16, gs, g4);
+        } else if step > 0 {
             gemm_acc(
                 b,
                 g4,
@@ -269,11 +297,13 @@ pub fn backward(
     d: &LstmDims,
     params: &[f32],
     idx: &LstmParamIdx,
+    prep: &LstmPrepared,
     b: usize,
     dh_last: &[f32],
     work: &mut LstmWork,
     grads: LstmGrads<'_>,
     want_dx: bool,
+    mixed: bool,
 ) {
     let (t, j, h) = (d.t, d.j, d.h);
     let g4 = 4 * h;
@@ -297,7 +327,23 @@ pub fn backward(
             b,
             h,
         );
-        if step > 0 {
+        if step > 0 && mixed {
+            pack_cols(
+                b,
+                g4,
+                &work.dg[step * b * g4..(step + 1) * b * g4],
+                g4,
+                &mut work.pack_a,
+            );
+            let a = PackedA {
+                data: &work.pack_a,
+                rs: pairs(g4),
+                ps: 1,
+            };
+            let dh = &mut work.dh[..b * h];
+            dh.fill(0.0);
+            gemm_bf16_acc(b, h, pairs(g4), a, &prep.r_bf16, dh, h);
+        } else if step > 0 {
             let dh = &mut work.dh[..b * h];
             dh.fill(0.0);
             gemm_acc(
@@ -320,7 +366,18 @@ pub fn backward(
     // dg[1..T] pair with hs[1..T]. Accumulated straight into the gradient, so no transposed
     // copy to add back; each element sums the same products in the same order as
     // h_{t−1}ᵀ dg_t would, and the gradient arrives zeroed, so the bits do not change.
-    if t > 1 {
+    if t > 1 && mixed {
+        // A = dg[1..T]ᵀ: packed k-major straight from dg's rows, so nothing is transposed.
+        let k = (t - 1) * b;
+        pack_rows(k, g4, &work.dg[b * g4..t * b * g4], g4, &mut work.pack_a);
+        pack_rows(k, h, &work.hs[b * h..t * b * h], h, &mut work.pack_b);
+        let a = PackedA {
+            data: &work.pack_a,
+            rs: 1,
+            ps: g4,
+        };
+        gemm_bf16_acc(g4, h, pairs(k), a, &work.pack_b, grads.w_hh, h);
+    } else if t > 1 {
         gemm_acc(
             g4,
             h,

@@ -4,6 +4,7 @@
 //! autograd — at a fraction of the cost: no graph, no per-op allocation, one GEMM per LSTM
 //! step, the TCN's 5-channel convolutions as shifted vector loops.
 
+pub mod bf16;
 pub mod gemm;
 pub mod linear;
 pub mod lstm;
@@ -13,6 +14,45 @@ pub mod tcn;
 use crate::arch::{Arch, ModelSpec, ParamLayout, FNN_HIDDEN, HEAD_HIDDEN, LSTM_HIDDEN};
 use lstm::{LstmDims, LstmGrads, LstmParamIdx, LstmPrepared, LstmWork};
 use tcn::{TcnDims, TcnParamIdx, TcnScratch};
+
+/// Arithmetic of the training products.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Precision {
+    /// Everything in f32 (the default; what the tests hold to candle's autograd).
+    #[default]
+    F32,
+    /// Mixed: the LSTM's recurrent products (h·W_hhᵀ, dg·W_hh, dW_hh: nine tenths of its
+    /// arithmetic) with bf16 operands and f32 sums ([`bf16`]); everything else, the master
+    /// weights, the optimiser and every forward pass outside training stay f32.
+    Bf16,
+}
+
+impl Precision {
+    pub fn name(self) -> &'static str {
+        match self {
+            Precision::F32 => "f32",
+            Precision::Bf16 => "bf16",
+        }
+    }
+}
+
+impl std::fmt::Display for Precision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Precision {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "f32" => Ok(Precision::F32),
+            "bf16" => Ok(Precision::Bf16),
+            _ => Err(format!("precision {s:?} is not f32 or bf16")),
+        }
+    }
+}
 
 /// A fully connected layer's place in the parameter vector.
 #[derive(Debug, Clone, Copy)]
@@ -33,6 +73,8 @@ pub struct Net {
     /// The fully connected stack: the LSTM head (fc.0, fc.2) or the FNN (net.1, 3, 5).
     /// ReLU after every layer but the last.
     mlp: Vec<Lin>,
+    /// Arithmetic of [`Net::forward_backward`]; [`Net::forward`] is always f32.
+    precision: Precision,
 }
 
 /// Weight copies in the orientation the GEMMs want; refresh with [`Net::prepare`] after
@@ -123,7 +165,18 @@ impl Net {
             tcn,
             lstm,
             mlp,
+            precision: Precision::F32,
         }
+    }
+
+    /// The same network training in `precision` (only architectures with an LSTM change).
+    pub fn with_precision(mut self, precision: Precision) -> Self {
+        self.precision = precision;
+        self
+    }
+
+    fn mixed(&self) -> bool {
+        self.precision == Precision::Bf16 && self.lstm.is_some()
     }
 
     pub fn param_count(&self) -> usize {
@@ -162,7 +215,7 @@ impl Net {
 
     pub fn prepare(&self, params: &[f32], prep: &mut Prepared) {
         if let Some((d, idx)) = &self.lstm {
-            prep.lstm.prepare(d, params, idx);
+            prep.lstm.prepare(d, params, idx, self.mixed());
         }
         prep.lin_t.resize(self.mlp.len(), Vec::new());
         for (l, t) in self.mlp.iter().zip(prep.lin_t.iter_mut()) {
@@ -174,12 +227,12 @@ impl Net {
     /// `out` (`[b][J]`).
     pub fn forward(&self, params: &[f32], prep: &Prepared, x: &[f32], b: usize, ws: &mut Workspace, out: &mut [f32]) {
         assert!(b <= ws.cap, "batch {b} exceeds workspace capacity {}", ws.cap);
-        self.forward_inner(params, prep, x, b, ws);
+        self.forward_inner(params, prep, x, b, ws, false);
         let j = self.spec.joints;
         out[..b * j].copy_from_slice(&ws.out[..b * j]);
     }
 
-    fn forward_inner(&self, params: &[f32], prep: &Prepared, x: &[f32], b: usize, ws: &mut Workspace) {
+    fn forward_inner(&self, params: &[f32], prep: &Prepared, x: &[f32], b: usize, ws: &mut Workspace, mixed: bool) {
         let j = self.spec.joints;
         let l = self.spec.seq_len;
         if let Some((d, idx)) = &self.tcn {
@@ -208,7 +261,7 @@ impl Net {
                         }
                     }
                 }
-                lstm::forward(ld, &prep.lstm, b, work);
+                lstm::forward(ld, &prep.lstm, b, work, mixed);
                 let h_last = work.h_last(ld, b);
                 mlp_forward(&self.mlp, params, prep, h_last, b, &mut ws.acts);
                 ws.out[..b * j].copy_from_slice(&ws.acts[self.mlp.len() - 1][..b * j]);
@@ -238,7 +291,8 @@ impl Net {
     ) -> f64 {
         assert!(b <= ws.cap, "batch {b} exceeds workspace capacity {}", ws.cap);
         assert_eq!(grad.len(), self.layout.total);
-        self.forward_inner(params, prep, x, b, ws);
+        let mixed = self.mixed();
+        self.forward_inner(params, prep, x, b, ws, mixed);
         let j = self.spec.joints;
         let l = self.spec.seq_len;
         let mut sse = 0.0f64;
@@ -286,6 +340,7 @@ impl Net {
                     ld,
                     params,
                     lidx,
+                    &prep.lstm,
                     b,
                     dh_last,
                     work,
@@ -296,6 +351,7 @@ impl Net {
                         b_hh: &mut b_hh[..g4],
                     },
                     want_dx,
+                    mixed,
                 );
                 if let Some((d, idx)) = &self.tcn {
                     let Some(scratch) = ws.tcn_scratch.as_mut() else {

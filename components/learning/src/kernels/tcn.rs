@@ -72,6 +72,9 @@ pub struct TcnParamIdx {
 pub struct TcnScratch {
     dz: Vec<f32>,
     dh1: Vec<f32>,
+    /// Gradients at a conv's output, `C` rows of `T + pad` floats (then `LANES` spare), so
+    /// the input-gradient loop reads `g[t + shift]` past a row's end without a bounds
+    /// branch (those lanes are masked out).
     da: Vec<f32>,
 }
 
@@ -80,34 +83,60 @@ impl TcnScratch {
         Self {
             dz: vec![0.0; d.plane()],
             dh1: vec![0.0; d.plane()],
-            da: vec![0.0; d.c * d.t],
+            // A register block may read up to LANES − 1 floats past the last row (masked).
+            da: vec![0.0; d.c * d.s() + LANES],
         }
     }
 }
 
+/// Time steps per register block of the convolution loops (one AVX-512 vector).
+const LANES: usize = 16;
+
 simd_fn! {
     /// out[co][P+t] = bias[co] + Σ_ci Σ_kk w[co][ci][kk] · inp[ci][P + t − (2−kk)·d]
+    ///
+    /// Every output starts at the bias and adds the taps one by one in (ci, kk) order — the
+    /// same sums in the same order as a pass over the row per tap, so the same bits — but 16
+    /// time steps are held in a register through all the taps instead of being loaded and
+    /// stored once per tap.
     fn conv_fwd(w: &[f32], bias: &[f32], dil: usize, inp: &[f32], out: &mut [f32], c: usize, pad: usize, t: usize) {
         let s = pad + t;
+        let full = t / LANES * LANES;
         for co in 0..c {
+            let wrow = &w[co * c * TCN_KERNEL..(co + 1) * c * TCN_KERNEL];
             let o = &mut out[co * s + pad..co * s + pad + t];
-            o.fill(bias[co]);
-            for ci in 0..c {
-                for kk in 0..TCN_KERNEL {
-                    let shift = (TCN_KERNEL - 1 - kk) * dil;
-                    let wv = w[(co * c + ci) * TCN_KERNEL + kk];
-                    let src = &inp[ci * s + pad - shift..ci * s + pad - shift + t];
-                    for (ov, sv) in o.iter_mut().zip(src) {
-                        *ov += wv * sv;
+            for t0 in (0..full).step_by(LANES) {
+                let mut acc = [bias[co]; LANES];
+                for ci in 0..c {
+                    for kk in 0..TCN_KERNEL {
+                        let shift = (TCN_KERNEL - 1 - kk) * dil;
+                        let wv = wrow[ci * TCN_KERNEL + kk];
+                        let at = ci * s + pad - shift + t0;
+                        let src = &inp[at..at + LANES];
+                        for l in 0..LANES {
+                            acc[l] += wv * src[l];
+                        }
                     }
                 }
+                o[t0..t0 + LANES].copy_from_slice(&acc);
+            }
+            for tt in full..t {
+                let mut acc = bias[co];
+                for ci in 0..c {
+                    for kk in 0..TCN_KERNEL {
+                        let shift = (TCN_KERNEL - 1 - kk) * dil;
+                        acc += wrow[ci * TCN_KERNEL + kk] * inp[ci * s + pad - shift + tt];
+                    }
+                }
+                o[tt] = acc;
             }
         }
     }
 }
 
 simd_fn! {
-    /// Gradients of one conv: dw += dout ⋆ inp, db += Σ dout, din[..] += wᵀ dout (if `want_din`).
+    /// Gradients of one conv: dw += dout ⋆ inp, db += Σ dout, din[..] += wᵀ dout (if
+    /// `want_din`). `dout` is `C` rows of `T + pad` floats and `LANES` more.
     fn conv_bwd(
         w: &[f32],
         dil: usize,
@@ -123,21 +152,54 @@ simd_fn! {
     ) {
         let s = pad + t;
         for co in 0..c {
-            let g = &dout[co * t..co * t + t];
+            let g = &dout[co * s..co * s + t];
             db[co] += sum16(g);
             for ci in 0..c {
                 for kk in 0..TCN_KERNEL {
                     let shift = (TCN_KERNEL - 1 - kk) * dil;
                     let src = &inp[ci * s + pad - shift..ci * s + pad - shift + t];
-                    let widx = (co * c + ci) * TCN_KERNEL + kk;
-                    dw[widx] += dot16(g, src);
-                    if want_din && shift < t {
-                        // din[ci][t' ] += w · g[t' + shift] for t' in 0..t−shift (taps into the
-                        // zero pad carry no gradient anywhere).
-                        let wv = w[widx];
-                        let dst = &mut din[ci * s + pad..ci * s + pad + t - shift];
-                        for (dv, gv) in dst.iter_mut().zip(&g[shift..]) {
-                            *dv += wv * gv;
+                    dw[(co * c + ci) * TCN_KERNEL + kk] += dot16(g, src);
+                }
+            }
+        }
+        if !want_din {
+            return;
+        }
+        // din[ci][t'] += w[co][ci][kk] · g_co[t' + shift] for t' + shift < t (taps into the
+        // zero pad carry no gradient anywhere), added in (co, kk) order: the order of a pass
+        // per tap, 16 time steps held in a register. A lane past the end adds −0.0, which
+        // leaves every value (±0 included) as it was, so the bits are those of the loop
+        // that skips it.
+        let full = t / LANES * LANES;
+        for ci in 0..c {
+            let drow = &mut din[ci * s + pad..ci * s + pad + t];
+            for t0 in (0..full).step_by(LANES) {
+                let mut acc = [0.0f32; LANES];
+                acc.copy_from_slice(&drow[t0..t0 + LANES]);
+                for co in 0..c {
+                    for kk in 0..TCN_KERNEL {
+                        let shift = (TCN_KERNEL - 1 - kk) * dil;
+                        if t0 + shift >= t {
+                            continue;
+                        }
+                        let wv = w[(co * c + ci) * TCN_KERNEL + kk];
+                        let at = co * s + t0 + shift;
+                        let gsrc = &dout[at..at + LANES];
+                        let live = t - t0 - shift;
+                        for l in 0..LANES {
+                            let term = wv * gsrc[l];
+                            acc[l] += if l < live { term } else { -0.0 };
+                        }
+                    }
+                }
+                drow[t0..t0 + LANES].copy_from_slice(&acc);
+            }
+            for (tt, dv) in drow.iter_mut().enumerate().skip(full) {
+                for co in 0..c {
+                    for kk in 0..TCN_KERNEL {
+                        let shift = (TCN_KERNEL - 1 - kk) * dil;
+                        if tt + shift < t {
+                            *dv += w[(co * c + ci) * TCN_KERNEL + kk] * dout[co * s + tt + shift];
                         }
                     }
                 }
@@ -297,7 +359,7 @@ pub fn backward_window(
         // da2 = dz ⊙ relu'(a2) (relu-relu) or dz (relu-linear)
         for co in 0..c {
             let g = &dz[co * s + pad..co * s + pad + t];
-            let out = &mut da[co * t..(co + 1) * t];
+            let out = &mut da[co * s..co * s + t];
             match d.block_kind {
                 TcnBlock::ReluRelu => relu_grad(out, g, &h2[co * s + pad..co * s + pad + t]),
                 TcnBlock::ReluLinear => out.copy_from_slice(g),
@@ -322,7 +384,7 @@ pub fn backward_window(
         }
         for co in 0..c {
             let r = co * s + pad..co * s + pad + t;
-            relu_grad(&mut da[co * t..(co + 1) * t], &dh1[r.clone()], &h1[r]);
+            relu_grad(&mut da[co * s..co * s + t], &dh1[r.clone()], &h1[r]);
         }
         // dz_k = dz_{k+1} (residual) + conv1's input gradient, accumulated in place.
         let (gw, rest) = grad.split_at_mut(b1);
@@ -339,5 +401,128 @@ pub fn backward_window(
             pad,
             t,
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// The loops before the register blocks: one pass over the row per tap.
+    #[allow(clippy::too_many_arguments)]
+    fn conv_fwd_per_tap(
+        w: &[f32],
+        bias: &[f32],
+        dil: usize,
+        inp: &[f32],
+        out: &mut [f32],
+        c: usize,
+        pad: usize,
+        t: usize,
+    ) {
+        let s = pad + t;
+        for co in 0..c {
+            let o = &mut out[co * s + pad..co * s + pad + t];
+            o.fill(bias[co]);
+            for ci in 0..c {
+                for kk in 0..TCN_KERNEL {
+                    let shift = (TCN_KERNEL - 1 - kk) * dil;
+                    let wv = w[(co * c + ci) * TCN_KERNEL + kk];
+                    let src = &inp[ci * s + pad - shift..ci * s + pad - shift + t];
+                    for (ov, sv) in o.iter_mut().zip(src) {
+                        *ov += wv * sv;
+                    }
+                }
+            }
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn din_per_tap(w: &[f32], dil: usize, dout: &[f32], din: &mut [f32], c: usize, pad: usize, t: usize) {
+        let s = pad + t;
+        for co in 0..c {
+            let g = &dout[co * s..co * s + t];
+            for ci in 0..c {
+                for kk in 0..TCN_KERNEL {
+                    let shift = (TCN_KERNEL - 1 - kk) * dil;
+                    if shift < t {
+                        let wv = w[(co * c + ci) * TCN_KERNEL + kk];
+                        let dst = &mut din[ci * s + pad..ci * s + pad + t - shift];
+                        for (dv, gv) in dst.iter_mut().zip(&g[shift..]) {
+                            *dv += wv * gv;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    fn bits(v: &[f32]) -> Vec<u32> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    /// The register-blocked convolutions give the per-tap loops' bits: lengths with and
+    /// without a partial block, every dilation, signed zeros in the input gradient.
+    #[test]
+    fn register_blocks_give_the_bits_of_a_pass_per_tap() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        for &(c, t, blocks) in &[(5, 80, 5), (3, 33, 3), (5, 20, 3), (2, 7, 2)] {
+            let d = TcnDims::new(c, t, blocks, TcnBlock::ReluLinear);
+            let (s, pad) = (d.s(), d.pad);
+            for k in 0..blocks {
+                let dil = tcn_dilation(k);
+                let w: Vec<f32> = (0..c * c * TCN_KERNEL).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let bias: Vec<f32> = (0..c).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let mut inp = vec![0.0f32; c * s];
+                for ci in 0..c {
+                    for v in &mut inp[ci * s + pad..(ci + 1) * s] {
+                        *v = rng.random_range(-1.0..1.0);
+                    }
+                }
+                let (mut a, mut b) = (vec![0.0f32; c * s], vec![0.0f32; c * s]);
+                conv_fwd(&w, &bias, dil, &inp, &mut a, c, pad, t);
+                conv_fwd_per_tap(&w, &bias, dil, &inp, &mut b, c, pad, t);
+                assert_eq!(bits(&a), bits(&b), "forward c={c} t={t} dil={dil}");
+
+                // Output gradients with exact zeros (ReLU) and an input gradient that starts
+                // with −0.0 entries, where adding +0.0 instead of nothing would flip a bit.
+                let mut dout = vec![0.0f32; c * s + LANES];
+                for co in 0..c {
+                    for v in &mut dout[co * s..co * s + t] {
+                        *v = if rng.random_bool(0.3) {
+                            0.0
+                        } else {
+                            rng.random_range(-1.0..1.0)
+                        };
+                    }
+                }
+                let mut din0 = vec![0.0f32; c * s];
+                for v in din0.iter_mut() {
+                    *v = if rng.random_bool(0.5) {
+                        -0.0
+                    } else {
+                        rng.random_range(-1.0..1.0)
+                    };
+                }
+                let (mut dw_a, mut db_a, mut din_a) = (vec![0.0f32; w.len()], vec![0.0f32; c], din0.clone());
+                conv_bwd(&w, dil, &inp, &dout, &mut dw_a, &mut db_a, &mut din_a, true, c, pad, t);
+                let mut din_b = din0.clone();
+                din_per_tap(&w, dil, &dout, &mut din_b, c, pad, t);
+                assert_eq!(bits(&din_a), bits(&din_b), "input gradient c={c} t={t} dil={dil}");
+                for co in 0..c {
+                    let g = &dout[co * s..co * s + t];
+                    assert_eq!(db_a[co].to_bits(), sum16(g).to_bits());
+                    for ci in 0..c {
+                        for kk in 0..TCN_KERNEL {
+                            let shift = (TCN_KERNEL - 1 - kk) * dil;
+                            let src = &inp[ci * s + pad - shift..ci * s + pad - shift + t];
+                            assert_eq!(dw_a[(co * c + ci) * TCN_KERNEL + kk].to_bits(), dot16(g, src).to_bits());
+                        }
+                    }
+                }
+            }
+        }
     }
 }

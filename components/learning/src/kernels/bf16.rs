@@ -1,0 +1,350 @@
+//! Mixed-precision products for training: `C[m×n] += A·B` with A and B rounded to bfloat16
+//! and every sum kept in f32 — what PyTorch's `autocast(bfloat16)` does for a matrix product.
+//!
+//! Why: the LSTM epoch is three products (h·W_hhᵀ, dg·W_hh, dW_hh) of ≈ 3.9·10¹¹
+//! multiply-adds, and in f32 they alone hold it at ≈ 1.5 s on two cores running at the FMA
+//! peak. AVX-512 BF16's `vdpbf16ps` does two multiply-adds per f32 lane per instruction, so
+//! the same products take about half as long. Only training uses it, and only when asked
+//! (`precision = "bf16"`); the master weights, Adam, the validation and everything exported
+//! stay f32.
+//!
+//! Operands are packed as *pairs along k*: one `u32` holds `bf16(X[.., 2p])` in its low half
+//! and `bf16(X[.., 2p + 1])` in its high half (the layout `vdpbf16ps` multiplies lane by
+//! lane); an odd k is padded with a zero. B is packed `[k/2][n]` ([`pack_rows`]); A either
+//! row-major `[m][k/2]` ([`pack_cols`], for an A stored row-major) or k-major `[k/2][m]`
+//! ([`pack_rows`] again, for an A that is the transpose of a row-major matrix), so no pack
+//! ever transposes. The portable path computes the same products (a bf16 × bf16 product is
+//! exact in f32) summed pair by pair, so the two paths agree to f32 rounding, not bit for
+//! bit.
+
+use super::simd::simd_fn;
+
+/// f32 → bfloat16 bits, round to nearest, ties to even; a NaN stays a NaN. Branch-free, so
+/// the packing loops vectorise.
+#[inline(always)]
+pub fn to_bf16(x: f32) -> u16 {
+    let bits = x.to_bits();
+    let rounded = bits.wrapping_add(0x7fff + ((bits >> 16) & 1)) >> 16;
+    let quiet_nan = (bits >> 16) | 0x40;
+    (if (bits & 0x7fff_ffff) > 0x7f80_0000 {
+        quiet_nan
+    } else {
+        rounded
+    }) as u16
+}
+
+/// bfloat16 bits → f32 (exact).
+#[inline(always)]
+pub fn from_bf16(b: u16) -> f32 {
+    f32::from_bits((b as u32) << 16)
+}
+
+#[inline(always)]
+fn pair(lo: f32, hi: f32) -> u32 {
+    to_bf16(lo) as u32 | ((to_bf16(hi) as u32) << 16)
+}
+
+/// Pairs along k of a k-row count: `ceil(k / 2)`.
+pub fn pairs(k: usize) -> usize {
+    k.div_ceil(2)
+}
+
+simd_fn! {
+    fn pair_rows(lo: &[f32], hi: &[f32], out: &mut [u32]) {
+        for ((o, l), h) in out.iter_mut().zip(lo).zip(hi) {
+            *o = pair(*l, *h);
+        }
+    }
+}
+
+simd_fn! {
+    fn pair_row_with_zero(lo: &[f32], out: &mut [u32]) {
+        for (o, l) in out.iter_mut().zip(lo) {
+            *o = to_bf16(*l) as u32;
+        }
+    }
+}
+
+simd_fn! {
+    fn pair_consecutive(src: &[f32], out: &mut [u32]) {
+        for (o, v) in out.iter_mut().zip(src.chunks_exact(2)) {
+            *o = pair(v[0], v[1]);
+        }
+    }
+}
+
+/// Packs the `k` rows of a row-major matrix (`n` columns, leading dimension `ld`) as
+/// `[pairs(k)][n]`: element `(p, j)` pairs rows 2p and 2p + 1 of column j. This is B's
+/// packing, and k-major A's when A = Xᵀ (then `n` = A's m).
+pub fn pack_rows(k: usize, n: usize, x: &[f32], ld: usize, out: &mut Vec<u32>) {
+    let kp = pairs(k);
+    out.resize(kp * n, 0);
+    for p in 0..kp {
+        let lo = &x[2 * p * ld..2 * p * ld + n];
+        let dst = &mut out[p * n..(p + 1) * n];
+        if 2 * p + 1 < k {
+            pair_rows(lo, &x[(2 * p + 1) * ld..(2 * p + 1) * ld + n], dst);
+        } else {
+            pair_row_with_zero(lo, dst);
+        }
+    }
+}
+
+/// Packs a row-major A (`m × k`, leading dimension `ld`) as `[m][pairs(k)]`.
+pub fn pack_cols(m: usize, k: usize, a: &[f32], ld: usize, out: &mut Vec<u32>) {
+    let kp = pairs(k);
+    out.resize(m * kp, 0);
+    for i in 0..m {
+        let src = &a[i * ld..i * ld + k];
+        let dst = &mut out[i * kp..(i + 1) * kp];
+        pair_consecutive(src, dst);
+        if k % 2 == 1 {
+            dst[kp - 1] = to_bf16(src[k - 1]) as u32;
+        }
+    }
+}
+
+/// A packed A operand: pair `p` of row `i` is `data[i * rs + p * ps]` (row-major from
+/// [`pack_cols`]: rs = pairs(k), ps = 1; k-major from [`pack_rows`]: rs = 1, ps = m).
+#[derive(Clone, Copy)]
+pub struct PackedA<'a> {
+    pub data: &'a [u32],
+    pub rs: usize,
+    pub ps: usize,
+}
+
+/// True when the CPU has AVX-512 BF16 (and the AVX-512 kernels are in use).
+pub fn has_avx512_bf16() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        super::simd::has_avx512() && std::arch::is_x86_feature_detected!("avx512bf16")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// `C[m×n] += A·B` from packed operands over `kp` pairs: `a` as [`PackedA`], `b` is
+/// `[kp][n]` ([`pack_rows`]), `C[i, j] = c[i * ldc + j]`.
+///
+/// Panics if a slice is too short for the given shape (a caller bug, never data).
+pub fn gemm_bf16_acc(m: usize, n: usize, kp: usize, a: PackedA<'_>, b: &[u32], c: &mut [f32], ldc: usize) {
+    if m == 0 || n == 0 || kp == 0 {
+        return;
+    }
+    assert!(
+        (m - 1) * a.rs + (kp - 1) * a.ps < a.data.len()
+            && b.len() >= kp * n
+            && c.len() > (m - 1) * ldc + n - 1
+            && n <= ldc,
+        "bf16 gemm {m}×{n}×{kp} pairs: operand too short (A {}, B {}, C {})",
+        a.data.len(),
+        b.len(),
+        c.len()
+    );
+    #[cfg(target_arch = "x86_64")]
+    {
+        if has_avx512_bf16() {
+            // SAFETY: the CPU has AVX-512F and AVX-512 BF16 (checked); every access is
+            // within the slices (checked above for the extreme indices of each operand).
+            unsafe { avx512::gemm(m, n, kp, a, b, c, ldc) };
+            return;
+        }
+    }
+    gemm_bf16_portable(m, n, kp, a, b, c, ldc);
+}
+
+/// The same products without the instruction: each pair's two products (exact in f32) added
+/// to the running sum in turn.
+pub fn gemm_bf16_portable(m: usize, n: usize, kp: usize, a: PackedA<'_>, b: &[u32], c: &mut [f32], ldc: usize) {
+    for i in 0..m {
+        let crow = &mut c[i * ldc..i * ldc + n];
+        for p in 0..kp {
+            let av = a.data[i * a.rs + p * a.ps];
+            let (a0, a1) = (from_bf16(av as u16), from_bf16((av >> 16) as u16));
+            let brow = &b[p * n..(p + 1) * n];
+            for (cv, bv) in crow.iter_mut().zip(brow) {
+                let (b0, b1) = (from_bf16(*bv as u16), from_bf16((*bv >> 16) as u16));
+                *cv += a0 * b0 + a1 * b1;
+            }
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    use std::arch::x86_64::*;
+
+    /// Rows of C per register tile; 32 columns (two vectors) per tile, so 16 accumulators.
+    const MR: usize = 8;
+    const NR: usize = 32;
+
+    #[target_feature(enable = "avx512f,avx512bf16")]
+    pub unsafe fn gemm(m: usize, n: usize, kp: usize, a: super::PackedA<'_>, b: &[u32], c: &mut [f32], ldc: usize) {
+        let (ap, bp, cp) = (a.data.as_ptr(), b.as_ptr(), c.as_mut_ptr());
+        let (rs, ps) = (a.rs, a.ps);
+        let mut j0 = 0;
+        while j0 < n {
+            let nr = (n - j0).min(NR);
+            let m0: __mmask16 = if nr >= 16 { 0xffff } else { ((1u32 << nr) - 1) as u16 };
+            let m1: __mmask16 = if nr >= 32 {
+                0xffff
+            } else if nr > 16 {
+                ((1u32 << (nr - 16)) - 1) as u16
+            } else {
+                0
+            };
+            let mut i0 = 0;
+            while i0 < m {
+                let mr = (m - i0).min(MR);
+                let a_tile = ap.add(i0 * rs);
+                let b_tile = bp.add(j0);
+                let c_tile = cp.add(i0 * ldc + j0);
+                match mr {
+                    8 => tile::<8>(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1),
+                    7 => tile::<7>(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1),
+                    6 => tile::<6>(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1),
+                    5 => tile::<5>(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1),
+                    4 => tile::<4>(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1),
+                    3 => tile::<3>(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1),
+                    2 => tile::<2>(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1),
+                    _ => tile::<1>(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1),
+                }
+                i0 += MR;
+            }
+            j0 += NR;
+        }
+    }
+
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
+    unsafe fn tile<const R: usize>(
+        kp: usize,
+        ldb: usize,
+        a: *const u32,
+        rs: usize,
+        ps: usize,
+        b: *const u32,
+        c: *mut f32,
+        ldc: usize,
+        m0: __mmask16,
+        m1: __mmask16,
+    ) {
+        let mut acc0 = [_mm512_setzero_ps(); R];
+        let mut acc1 = [_mm512_setzero_ps(); R];
+        if m1 != 0 {
+            for p in 0..kp {
+                let brow = b.add(p * ldb) as *const i32;
+                let b0: __m512bh = std::mem::transmute(_mm512_maskz_loadu_epi32(m0, brow));
+                let b1: __m512bh = std::mem::transmute(_mm512_maskz_loadu_epi32(m1, brow.add(16)));
+                for r in 0..R {
+                    let av: __m512bh = std::mem::transmute(_mm512_set1_epi32(*a.add(r * rs + p * ps) as i32));
+                    acc0[r] = _mm512_dpbf16_ps(acc0[r], av, b0);
+                    acc1[r] = _mm512_dpbf16_ps(acc1[r], av, b1);
+                }
+            }
+        } else {
+            for p in 0..kp {
+                let b0: __m512bh = std::mem::transmute(_mm512_maskz_loadu_epi32(m0, b.add(p * ldb) as *const i32));
+                for r in 0..R {
+                    let av: __m512bh = std::mem::transmute(_mm512_set1_epi32(*a.add(r * rs + p * ps) as i32));
+                    acc0[r] = _mm512_dpbf16_ps(acc0[r], av, b0);
+                }
+            }
+        }
+        for r in 0..R {
+            let crow = c.add(r * ldc);
+            let c0 = _mm512_maskz_loadu_ps(m0, crow);
+            _mm512_mask_storeu_ps(crow, m0, _mm512_add_ps(c0, acc0[r]));
+            if m1 != 0 {
+                let c1 = _mm512_maskz_loadu_ps(m1, crow.add(16));
+                _mm512_mask_storeu_ps(crow.add(16), m1, _mm512_add_ps(c1, acc1[r]));
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    fn rounding_is_to_nearest_even() {
+        assert_eq!(from_bf16(to_bf16(1.0)), 1.0);
+        // 1 + 2⁻⁸ is halfway between 1 and 1 + 2⁻⁷: ties to the even mantissa (1.0).
+        assert_eq!(from_bf16(to_bf16(1.0 + 1.0 / 256.0)), 1.0);
+        // 1 + 3·2⁻⁸ is halfway between 1 + 2⁻⁷ and 1 + 2⁻⁶: ties up to the even one.
+        assert_eq!(from_bf16(to_bf16(1.0 + 3.0 / 256.0)), 1.0 + 4.0 / 256.0);
+        assert_eq!(from_bf16(to_bf16(-2.5)), -2.5);
+        assert!(from_bf16(to_bf16(f32::NAN)).is_nan());
+        let x = 0.123_456_79f32;
+        assert!((from_bf16(to_bf16(x)) - x).abs() <= x * 2f32.powi(-9));
+    }
+
+    /// Both paths, with A packed row-major and k-major, against the f64 product of the
+    /// *rounded* operands (so the only difference is f32 summation), and against the
+    /// unrounded product within bf16's precision.
+    #[test]
+    fn packed_products_match_the_rounded_operands_on_odd_shapes() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        for &(m, n, k) in &[
+            (1, 1, 1),
+            (5, 7, 3),
+            (8, 32, 16),
+            (9, 33, 17),
+            (16, 512, 128),
+            (16, 128, 512),
+            (3, 64, 1),
+        ] {
+            for k_major in [false, true] {
+                // A row-major `[m][k]`, or A = Xᵀ with X row-major `[k][m]`.
+                let x: Vec<f32> = (0..m * k).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let a_at = |i: usize, kk: usize| if k_major { x[kk * m + i] } else { x[i * k + kk] };
+                let ldb = n + 3;
+                let b: Vec<f32> = (0..k * ldb).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let ldc = n + 1;
+                let c0: Vec<f32> = (0..m * ldc).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let (mut pa, mut pb) = (Vec::new(), Vec::new());
+                let kp = pairs(k);
+                let (rs, ps) = if k_major {
+                    pack_rows(k, m, &x, m, &mut pa);
+                    (1, m)
+                } else {
+                    pack_cols(m, k, &x, k, &mut pa);
+                    (kp, 1)
+                };
+                let av = PackedA { data: &pa, rs, ps };
+                pack_rows(k, n, &b, ldb, &mut pb);
+                let mut fast = c0.clone();
+                gemm_bf16_acc(m, n, kp, av, &pb, &mut fast, ldc);
+                let mut port = c0.clone();
+                gemm_bf16_portable(m, n, kp, av, &pb, &mut port, ldc);
+                for i in 0..m {
+                    for j in 0..n {
+                        let (mut rounded, mut exact) = (c0[i * ldc + j] as f64, c0[i * ldc + j] as f64);
+                        for kk in 0..k {
+                            let (av, bv) = (a_at(i, kk), b[kk * ldb + j]);
+                            rounded += from_bf16(to_bf16(av)) as f64 * from_bf16(to_bf16(bv)) as f64;
+                            exact += av as f64 * bv as f64;
+                        }
+                        let tol = 1e-5 * (1.0 + k as f64).sqrt() * 4.0;
+                        let idx = i * ldc + j;
+                        assert!((fast[idx] as f64 - rounded).abs() < tol, "{m}×{n}×{k} fast[{i},{j}]");
+                        assert!(
+                            (port[idx] as f64 - rounded).abs() < tol,
+                            "{m}×{n}×{k} portable[{i},{j}]"
+                        );
+                        // Each operand is within 2⁻⁹ relative of its value: each product
+                        // within ≈ 2⁻⁸ of its magnitude (≤ 1 here).
+                        assert!((fast[idx] as f64 - exact).abs() < 4e-3 * k as f64 + tol);
+                    }
+                    // Padding columns of C (j ≥ n) are untouched.
+                    assert_eq!(fast[i * ldc + n], c0[i * ldc + n]);
+                }
+            }
+        }
+    }
+}
