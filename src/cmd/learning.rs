@@ -237,7 +237,8 @@ pub struct ImportArgs {
 #[derive(Subcommand)]
 pub enum BenchCommand {
     /// Seconds per training epoch: 24,565 windows of L = 80, batch 32, J = 5 (synthetic
-    /// data), against PyTorch 2.15 with 2 threads on this CPU (3.65 s TCN, 6.4 s LSTM).
+    /// data), against PyTorch's epoch timed in the same run (--pytorch PYTHON) or else the
+    /// issue's figures from another machine (2 threads: 3.65 s TCN, 6.4 s LSTM).
     Train(BenchTrainArgs),
 }
 

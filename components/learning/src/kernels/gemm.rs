@@ -8,12 +8,16 @@
 //! vectorises for the baseline target.
 //!
 //! Why not faer: at the shapes an LSTM step uses (benches/gemm.rs; best of 15 alternating
-//! rounds on the 2-core AVX-512 machine) this kernel runs at 52–56 G multiply-adds/s per core,
-//! close to the ~58 G/s FMA peak, and faer 0.24.4's `matmul` (Par::Seq, same buffers) takes
+//! rounds on the 2-core AVX-512 machine of 2026-11-25) this kernel ran at 52–56 G
+//! multiply-adds/s per core, and faer 0.24.4's `matmul` (Par::Seq, same buffers) took
 //! 4–9 % longer on the recurrent products (16×512×128, 16×128×512: two thirds of the
-//! epoch's arithmetic), 8–17 % longer on the head and dW_ihᵀ, and ties (±3 %) on dW_hh and
+//! epoch's arithmetic), 8–17 % longer on the head and dW_ihᵀ, and tied (±3 %) on dW_hh and
 //! the input projections. So the kernels call only [`gemm_acc`]; the `faer` feature keeps
-//! faer's product beside it for the comparison.
+//! faer's product beside it for the comparison. Re-run on the Zen 5 guest of 2026-11-27
+//! (criterion, G multiply-adds/s, hand / faer): recurrent products 130 / 105 and 129 / 114,
+//! dW_hh 127 / 119, head 113–130 / 97–110, dW_ihᵀ 68 / 46; faer wins only the input
+//! projection (k = 5: 63 / 68), ≈ 1 % of the epoch's arithmetic. The hand kernel runs at
+//! ≈ 95 % of that core's FMA peak (≈ 132 G/s with 12 independent accumulators).
 
 /// A strided view of A: element (i, k) is `data[i * rs + k * cs]`.
 #[derive(Clone, Copy)]
