@@ -174,11 +174,8 @@ pub fn gemm_bf16_portable(m: usize, n: usize, kp: usize, a: PackedA<'_>, b: &[u3
 
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
+    use crate::kernels::gemm::avx512::{add_to_c, by_rows, edge_masks, MR, NR};
     use std::arch::x86_64::*;
-
-    /// Rows of C per register tile; 32 columns (two vectors) per tile, so 16 accumulators.
-    const MR: usize = 8;
-    const NR: usize = 32;
 
     #[target_feature(enable = "avx512f,avx512bf16")]
     pub unsafe fn gemm(m: usize, n: usize, kp: usize, a: super::PackedA<'_>, b: &[u32], c: &mut [f32], ldc: usize) {
@@ -186,31 +183,15 @@ mod avx512 {
         let (rs, ps) = (a.rs, a.ps);
         let mut j0 = 0;
         while j0 < n {
-            let nr = (n - j0).min(NR);
-            let m0: __mmask16 = if nr >= 16 { 0xffff } else { ((1u32 << nr) - 1) as u16 };
-            let m1: __mmask16 = if nr >= 32 {
-                0xffff
-            } else if nr > 16 {
-                ((1u32 << (nr - 16)) - 1) as u16
-            } else {
-                0
-            };
+            let (m0, m1) = edge_masks((n - j0).min(NR));
             let mut i0 = 0;
             while i0 < m {
-                let mr = (m - i0).min(MR);
                 let a_tile = ap.add(i0 * rs);
-                let b_tile = bp.add(j0);
-                let c_tile = cp.add(i0 * ldc + j0);
-                match mr {
-                    8 => tile::<8>(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1),
-                    7 => tile::<7>(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1),
-                    6 => tile::<6>(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1),
-                    5 => tile::<5>(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1),
-                    4 => tile::<4>(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1),
-                    3 => tile::<3>(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1),
-                    2 => tile::<2>(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1),
-                    _ => tile::<1>(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1),
-                }
+                let (b_tile, c_tile) = (bp.add(j0), cp.add(i0 * ldc + j0));
+                by_rows!(
+                    (m - i0).min(MR),
+                    tile(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1)
+                );
                 i0 += MR;
             }
             j0 += NR;
@@ -253,15 +234,7 @@ mod avx512 {
                 }
             }
         }
-        for r in 0..R {
-            let crow = c.add(r * ldc);
-            let c0 = _mm512_maskz_loadu_ps(m0, crow);
-            _mm512_mask_storeu_ps(crow, m0, _mm512_add_ps(c0, acc0[r]));
-            if m1 != 0 {
-                let c1 = _mm512_maskz_loadu_ps(m1, crow.add(16));
-                _mm512_mask_storeu_ps(crow.add(16), m1, _mm512_add_ps(c1, acc1[r]));
-            }
-        }
+        add_to_c(c, ldc, &acc0, &acc1, m0, m1);
     }
 }
 

@@ -114,13 +114,68 @@ pub fn gemm_portable(m: usize, n: usize, k: usize, a: StridedA<'_>, b: &[f32], l
 }
 
 #[cfg(target_arch = "x86_64")]
-mod avx512 {
+pub(super) mod avx512 {
     use super::StridedA;
     use std::arch::x86_64::*;
 
-    const MR: usize = 8;
-    const NR: usize = 32;
+    /// Rows of C per register tile; 32 columns (two vectors) per tile, so 16 accumulators.
+    pub(in crate::kernels) const MR: usize = 8;
+    pub(in crate::kernels) const NR: usize = 32;
     const KC: usize = 256;
+
+    /// The load/store masks of a tile's two vectors when `nr` (≤ 32) of its columns are live.
+    #[inline(always)]
+    pub(in crate::kernels) fn edge_masks(nr: usize) -> (__mmask16, __mmask16) {
+        let m0: __mmask16 = if nr >= 16 { 0xffff } else { ((1u32 << nr) - 1) as u16 };
+        let m1: __mmask16 = if nr >= 32 {
+            0xffff
+        } else if nr > 16 {
+            ((1u32 << (nr - 16)) - 1) as u16
+        } else {
+            0
+        };
+        (m0, m1)
+    }
+
+    /// `f::<R>(args)` with R = `mr`, a tile's live rows (1 ..= [`MR`]): the accumulators
+    /// are arrays of R registers, so R must be a constant.
+    macro_rules! by_rows {
+        ($mr:expr, $f:ident($($arg:expr),* $(,)?)) => {
+            match $mr {
+                8 => $f::<8>($($arg),*),
+                7 => $f::<7>($($arg),*),
+                6 => $f::<6>($($arg),*),
+                5 => $f::<5>($($arg),*),
+                4 => $f::<4>($($arg),*),
+                3 => $f::<3>($($arg),*),
+                2 => $f::<2>($($arg),*),
+                _ => $f::<1>($($arg),*),
+            }
+        };
+    }
+    pub(in crate::kernels) use by_rows;
+
+    /// C's R rows (stride `ldc`) += the tile's accumulators, under the edge masks.
+    #[inline(always)]
+    #[allow(clippy::needless_range_loop)]
+    pub(in crate::kernels) unsafe fn add_to_c<const R: usize>(
+        c: *mut f32,
+        ldc: usize,
+        acc0: &[__m512; R],
+        acc1: &[__m512; R],
+        m0: __mmask16,
+        m1: __mmask16,
+    ) {
+        for r in 0..R {
+            let crow = c.add(r * ldc);
+            let c0 = _mm512_maskz_loadu_ps(m0, crow);
+            _mm512_mask_storeu_ps(crow, m0, _mm512_add_ps(c0, acc0[r]));
+            if m1 != 0 {
+                let c1 = _mm512_maskz_loadu_ps(m1, crow.add(16));
+                _mm512_mask_storeu_ps(crow.add(16), m1, _mm512_add_ps(c1, acc1[r]));
+            }
+        }
+    }
 
     #[target_feature(enable = "avx512f")]
     #[allow(clippy::too_many_arguments)]
@@ -169,34 +224,17 @@ mod avx512 {
         cp: *mut f32,
         ldc: usize,
     ) {
-        let a = (a_rs, a_cs);
         let mut j0 = 0;
         while j0 < n {
-            let nr = (n - j0).min(NR);
-            let m0: __mmask16 = if nr >= 16 { 0xffff } else { ((1u32 << nr) - 1) as u16 };
-            let m1: __mmask16 = if nr >= 32 {
-                0xffff
-            } else if nr > 16 {
-                ((1u32 << (nr - 16)) - 1) as u16
-            } else {
-                0
-            };
+            let (m0, m1) = edge_masks((n - j0).min(NR));
             let mut i0 = 0;
             while i0 < m {
-                let mr = (m - i0).min(MR);
-                let a_tile = ap.add(i0 * a.0);
-                let b_tile = bp.add(j0);
-                let c_tile = cp.add(i0 * ldc + j0);
-                match mr {
-                    8 => tile::<8>(k, a_tile, a.0, a.1, b_tile, ldb, c_tile, ldc, m0, m1),
-                    7 => tile::<7>(k, a_tile, a.0, a.1, b_tile, ldb, c_tile, ldc, m0, m1),
-                    6 => tile::<6>(k, a_tile, a.0, a.1, b_tile, ldb, c_tile, ldc, m0, m1),
-                    5 => tile::<5>(k, a_tile, a.0, a.1, b_tile, ldb, c_tile, ldc, m0, m1),
-                    4 => tile::<4>(k, a_tile, a.0, a.1, b_tile, ldb, c_tile, ldc, m0, m1),
-                    3 => tile::<3>(k, a_tile, a.0, a.1, b_tile, ldb, c_tile, ldc, m0, m1),
-                    2 => tile::<2>(k, a_tile, a.0, a.1, b_tile, ldb, c_tile, ldc, m0, m1),
-                    _ => tile::<1>(k, a_tile, a.0, a.1, b_tile, ldb, c_tile, ldc, m0, m1),
-                }
+                let a_tile = ap.add(i0 * a_rs);
+                let (b_tile, c_tile) = (bp.add(j0), cp.add(i0 * ldc + j0));
+                by_rows!(
+                    (m - i0).min(MR),
+                    tile(k, a_tile, a_rs, a_cs, b_tile, ldb, c_tile, ldc, m0, m1)
+                );
                 i0 += MR;
             }
             j0 += NR;
@@ -241,15 +279,7 @@ mod avx512 {
                 }
             }
         }
-        for r in 0..R {
-            let crow = c.add(r * ldc);
-            let c0 = _mm512_maskz_loadu_ps(m0, crow);
-            _mm512_mask_storeu_ps(crow, m0, _mm512_add_ps(c0, acc0[r]));
-            if m1 != 0 {
-                let c1 = _mm512_maskz_loadu_ps(m1, crow.add(16));
-                _mm512_mask_storeu_ps(crow.add(16), m1, _mm512_add_ps(c1, acc1[r]));
-            }
-        }
+        add_to_c(c, ldc, &acc0, &acc1, m0, m1);
     }
 }
 
