@@ -157,12 +157,18 @@ pub fn bench_train(opts: &BenchOptions) -> Result<BenchResult, TrainError> {
         speedup_vs_pytorch: pytorch.map(|p| p / median),
         pytorch_bf16_seconds: None,
         speedup_vs_pytorch_bf16: None,
-        simd: if crate::kernels::bf16::has_avx512_bf16() && opts.precision == Precision::Bf16 {
-            "avx512+bf16".into()
-        } else if crate::kernels::simd::has_avx512() {
-            "avx512".into()
-        } else {
-            "portable".into()
+        simd: {
+            let base = if crate::kernels::simd::has_avx512() {
+                "avx512"
+            } else {
+                "portable"
+            };
+            match opts.precision {
+                Precision::F32 => base.into(),
+                // Without the instruction the bf16 products run the (slow) portable loop.
+                Precision::Bf16 if crate::kernels::bf16::has_avx512_bf16() => format!("{base}+bf16"),
+                Precision::Bf16 => format!("{base}, bf16 products portable (no AVX-512 BF16)"),
+            }
         },
     })
 }
