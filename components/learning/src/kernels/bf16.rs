@@ -174,28 +174,20 @@ pub fn gemm_bf16_portable(m: usize, n: usize, kp: usize, a: PackedA<'_>, b: &[u3
 
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
-    use crate::kernels::gemm::avx512::{add_to_c, by_rows, edge_masks, MR, NR};
+    use crate::kernels::gemm::avx512::{add_to_c, by_rows, for_each_tile};
     use std::arch::x86_64::*;
 
     #[target_feature(enable = "avx512f,avx512bf16")]
     pub unsafe fn gemm(m: usize, n: usize, kp: usize, a: super::PackedA<'_>, b: &[u32], c: &mut [f32], ldc: usize) {
         let (ap, bp, cp) = (a.data.as_ptr(), b.as_ptr(), c.as_mut_ptr());
         let (rs, ps) = (a.rs, a.ps);
-        let mut j0 = 0;
-        while j0 < n {
-            let (m0, m1) = edge_masks((n - j0).min(NR));
-            let mut i0 = 0;
-            while i0 < m {
-                let a_tile = ap.add(i0 * rs);
-                let (b_tile, c_tile) = (bp.add(j0), cp.add(i0 * ldc + j0));
-                by_rows!(
-                    (m - i0).min(MR),
-                    tile(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1)
-                );
-                i0 += MR;
+        for_each_tile(m, n, |i0, j0, mr, m0, m1| {
+            // SAFETY: the tile lies inside the operands the caller checked.
+            unsafe {
+                let (a_tile, b_tile, c_tile) = (ap.add(i0 * rs), bp.add(j0), cp.add(i0 * ldc + j0));
+                by_rows!(mr, tile(kp, n, a_tile, rs, ps, b_tile, c_tile, ldc, m0, m1));
             }
-            j0 += NR;
-        }
+        });
     }
 
     #[inline(always)]

@@ -137,6 +137,27 @@ pub(super) mod avx512 {
         (m0, m1)
     }
 
+    /// Calls `f(i0, j0, mr, m0, m1)` for every register tile of an m × n product: its first
+    /// row and column, its live rows (≤ [`MR`]) and the masks of its live columns. Inlined
+    /// into the callers' `#[target_feature]` kernels (closures inherit their features).
+    #[inline(always)]
+    pub(in crate::kernels) fn for_each_tile(
+        m: usize,
+        n: usize,
+        mut f: impl FnMut(usize, usize, usize, __mmask16, __mmask16),
+    ) {
+        let mut j0 = 0;
+        while j0 < n {
+            let (m0, m1) = edge_masks((n - j0).min(NR));
+            let mut i0 = 0;
+            while i0 < m {
+                f(i0, j0, (m - i0).min(MR), m0, m1);
+                i0 += MR;
+            }
+            j0 += NR;
+        }
+    }
+
     /// `f::<R>(args)` with R = `mr`, a tile's live rows (1 ..= [`MR`]): the accumulators
     /// are arrays of R registers, so R must be a constant.
     macro_rules! by_rows {
@@ -224,21 +245,13 @@ pub(super) mod avx512 {
         cp: *mut f32,
         ldc: usize,
     ) {
-        let mut j0 = 0;
-        while j0 < n {
-            let (m0, m1) = edge_masks((n - j0).min(NR));
-            let mut i0 = 0;
-            while i0 < m {
-                let a_tile = ap.add(i0 * a_rs);
-                let (b_tile, c_tile) = (bp.add(j0), cp.add(i0 * ldc + j0));
-                by_rows!(
-                    (m - i0).min(MR),
-                    tile(k, a_tile, a_rs, a_cs, b_tile, ldb, c_tile, ldc, m0, m1)
-                );
-                i0 += MR;
+        for_each_tile(m, n, |i0, j0, mr, m0, m1| {
+            // SAFETY: the tile lies inside the operands the caller checked.
+            unsafe {
+                let (a_tile, b_tile, c_tile) = (ap.add(i0 * a_rs), bp.add(j0), cp.add(i0 * ldc + j0));
+                by_rows!(mr, tile(k, a_tile, a_rs, a_cs, b_tile, ldb, c_tile, ldc, m0, m1));
             }
-            j0 += NR;
-        }
+        });
     }
 
     #[inline(always)]
