@@ -20,6 +20,16 @@ def session(name):
     return before, end, windows
 
 
+def back_within(windows, before, onset):
+    """The first 30 s window after the onset from which every later window stays within 10 % of
+    the pre-slack error, as text ("never" if none)."""
+    after = [x for x in windows if x[0] >= onset]
+    for k, x in enumerate(after):
+        if all(y[2] <= 1.1 * before for y in after[k:]):
+            return f"{x[0]:.0f}–{x[1]:.0f} s ({x[0] - onset:.0f} s after onset)"
+    return "never"
+
+
 def swaps(name):
     p = os.path.join(OUT, name, "adapt-newton", "adapt.jsonl")
     if not os.path.exists(p):
@@ -28,22 +38,22 @@ def swaps(name):
     return recs
 
 
-print("| scenario | controller | before slack [mm] | end, feed-forward [mm] | end, adapted [mm] | end vs before, adapted | gain lost to slack recovered | swaps (checks) | first window back within 10 % after onset |")
-print("|---|---|---:|---:|---:|---:|---:|---:|---|")
-for s, onset in [("slip", 120.0), ("creep", 120.0), ("lugre-creep", 120.0)]:
-    for c in ["tcn", "accurate"]:
-        ff, ad = f"{s}-{c}-ff", f"{s}-{c}-adapt"
-        if not (os.path.exists(os.path.join(OUT, ff, "session.md")) and os.path.exists(os.path.join(OUT, ad, "session.md"))):
-            continue
-        b, e_ff, _ = session(ff)
-        b2, e_ad, w = session(ad)
-        recs = swaps(ad) or []
-        n_sw = sum(r["decision"] == "swapped" for r in recs)
-        back = "never"
-        after = [x for x in w if x[0] >= onset]
-        for k, x in enumerate(after):
-            if all(y[2] <= 1.1 * b2 for y in after[k:]):
-                back = f"{x[0]:.0f}–{x[1]:.0f} s ({x[0] - onset:.0f} s after onset)"
-                break
-        rec = (e_ff - e_ad) / (e_ff - b) if e_ff > b else float("nan")
-        print(f"| {s} | {c} | {b:.2f} | {e_ff:.2f} | {e_ad:.2f} | {100 * (e_ad / b2 - 1):+.0f} % | {100 * rec:.0f} % | {n_sw} ({len(recs)}) | {back} |")
+def main():
+    print("| scenario | controller | before slack [mm] | end, feed-forward [mm] | end, adapted [mm] | end vs before, adapted | gain lost to slack recovered | swaps (checks) | first window back within 10 % after onset |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---|")
+    for s, onset in [("slip", 120.0), ("creep", 120.0), ("lugre-creep", 120.0)]:
+        for c in ["tcn", "accurate"]:
+            ff, ad = f"{s}-{c}-ff", f"{s}-{c}-adapt"
+            if not (os.path.exists(os.path.join(OUT, ff, "session.md")) and os.path.exists(os.path.join(OUT, ad, "session.md"))):
+                continue
+            b, e_ff, _ = session(ff)
+            b2, e_ad, w = session(ad)
+            recs = swaps(ad) or []
+            n_sw = sum(r["decision"] == "swapped" for r in recs)
+            back = back_within(w, b2, onset)
+            rec = (e_ff - e_ad) / (e_ff - b) if e_ff > b else float("nan")
+            print(f"| {s} | {c} | {b:.2f} | {e_ff:.2f} | {e_ad:.2f} | {100 * (e_ad / b2 - 1):+.0f} % | {100 * rec:.0f} % | {n_sw} ({len(recs)}) | {back} |")
+
+
+if __name__ == "__main__":
+    main()
