@@ -10,14 +10,20 @@
 # then evaluate on the unseen paths (newton, 3 repeats). Beside it: the shipped accurate pair on
 # the same plant. SEEDS trains the LSTM inverse again with other seeds on the same data, each
 # tuned and evaluated: the spread of one recalibration. The real-time TCN pair (TCN forward and
-# inverse, base configs/controller.toml) is recalibrated beside it (TCN=0 skips it).
+# inverse, base configs/controller.toml) is recalibrated beside it.
 #
 # Usage: docs/results/adapt/oracle.sh [bowden binary]   (from the repository root)
-# Environment: OUT (default out/oracle), SAMPLES (collect --samples, default 8000 ≈ 58,500
-# commands, the shipped models' amount), COLLECT_SEED (collect --seed, default 2024 as a user
-# types it; the shipped models' dataset was --samples 7800 --seed 2026), SEEDS (default "0"), PLANTS (default "default slipped
-# crept"). Steps already done in OUT are skipped. ≈ 20 min per plant on 2 cores, ≈ 5 min per
-# further seed. SESSIONS=1 then starts run.sh's slip and creep sessions (feed-forward, and with
+# Environment:
+#   OUT           output directory (default out/oracle)
+#   SAMPLES       collect --samples (default 8000 ≈ 58,500 commands, the shipped models' amount)
+#   COLLECT_SEED  collect --seed (default 2024, what a user gets; the shipped models' dataset was
+#                 --samples 7800 --seed 2026)
+#   SEEDS         LSTM inverse seeds (default "0")
+#   PLANTS        default "default slipped crept"
+#   TCN           0 skips the TCN pair
+#   SESSIONS      1 runs the sessions below
+# Steps already done in OUT are skipped. ≈ 20 min per plant on 2 cores, ≈ 5 min per further
+# seed. SESSIONS=1 then starts run.sh's slip and creep sessions (feed-forward, and with
 # configs/adapt.toml) from each recalibrated default-robot pair instead of the shipped one.
 set -euo pipefail
 B=${1:-target/release/bowden}
