@@ -29,6 +29,12 @@ set -euo pipefail
 B=${1:-target/release/bowden}
 OUT=${OUT:-out/oracle}
 SAMPLES=${SAMPLES:-8000}
+[ -x "$B" ] || { echo "oracle.sh: no bowden binary at $B (cargo build --release, or pass its path)" >&2; exit 2; }
+for p in ${PLANTS:-default slipped crept}; do
+    case $p in default|slipped|crept) ;;
+        *) echo "oracle.sh: PLANTS: unknown plant '$p' (default, slipped, crept)" >&2; exit 2 ;;
+    esac
+done
 mkdir -p "$OUT"
 sed 's/^at_s = 120.0/at_s = 0.0/' configs/plant-slack-slip.toml > "$OUT/plant-slipped.toml"
 # 10 mm/s from t = 0: the creep is at its 1 mm cap within 0.1 s.
@@ -79,6 +85,10 @@ for p in ${PLANTS:-default slipped crept}; do
 done
 if [ "${SESSIONS:-0}" = 1 ]; then
     d=$OUT/default
+    for s in ${SEEDS:-0}; do
+        [ -f "$d/controller-seed$s.toml" ] || {
+            echo "oracle.sh: SESSIONS=1 needs $d/controller-seed$s.toml: include 'default' in PLANTS" >&2; exit 2; }
+    done
     for s in ${SEEDS:-0}; do
         for sc in slip:configs/plant-slack-slip.toml:7 creep:configs/plant-slack-creep.toml:15; do
             IFS=: read -r name plant min <<< "$sc"

@@ -1,10 +1,10 @@
 """The table of oracle.sh: tip position / orientation error and joint MAE by simulator truth,
-averaged over the three unseen paths and the repeats, for the shipped accurate pair and each
-recalibrated one, on each plant."""
+averaged over the three unseen paths and the repeats, for the shipped TCN and accurate pairs and
+each recalibrated one, on each plant; then the slack sessions started from recalibrated pairs."""
 import glob
-import sys
 import json
 import os
+import sys
 
 OUT = os.environ.get("OUT", "out/oracle")
 
