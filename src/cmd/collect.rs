@@ -27,13 +27,14 @@ pub struct CollectArgs {
     /// Plant file for the simulated robot (a second robot is a second file).
     #[arg(long)]
     pub plant: Option<PathBuf>,
-    /// Random configurations (eq. 16's endpoints). The default 4,000 with `mixed` gives about
-    /// 29,400 commands, 245 minutes on a robot at 0.5 s per command, as long as the paper's
-    /// collection (1,802 eq. (16) configurations, 30,707 commands, 256 minutes): enough for the
-    /// LSTM models, whose inverse `tune` then chose on 5 of the 6 held-out units of `bench
-    /// transfer`; 1,500 (≈ 11,000 commands, 92 minutes) is the least that held up with the TCN
-    /// pair alone (docs/results/data-study/).
-    #[arg(long, default_value_t = 4000)]
+    /// Random configurations (eq. 16's endpoints). The default 8,000 with `mixed` gives about
+    /// 58,500 commands, ≈ 8 hours on a robot at 0.5 s per command (the paper's collection:
+    /// 1,802 eq. (16) configurations, 30,707 commands, 256 minutes): what an LSTM forward model
+    /// needs to be the controller's (1.1–1.4° against the TCN's 2.3–3.4°), the recipe of `bench
+    /// transfer`. 4,000 (≈ 29,400 commands, 245 minutes) is enough for the LSTM inverse with the
+    /// TCN forward model, 1,500 (≈ 11,000 commands, 92 minutes) the least that held up with the
+    /// TCN pair alone (docs/results/data-study/).
+    #[arg(long, default_value_t = 8000)]
     pub samples: usize,
     /// Seed of the random configurations, the excitation's jumps and dither, and the run's noise.
     #[arg(long, default_value_t = 2024)]

@@ -138,9 +138,21 @@ pub struct Recipe {
     pub archs: Vec<String>,
     /// Forward models trained only to judge `tune`'s candidates (`tune --judge`), never sent
     /// commands: a model judging its own refinement rates newton at μ = 0 best because that is
-    /// what it minimises. An architecture here may also be in `archs` (then it is trained once).
+    /// what it minimises. An architecture that is also a forward candidate (`archs`,
+    /// `forward_archs`) is trained a second time for judging, with `judge_seed`
+    /// (`ARCH_forward_judge_L{L}.onnx`), so no candidate is rated by itself.
     #[serde(default)]
     pub judge_archs: Vec<String>,
+    /// `train --seed` of a judge whose architecture is also a forward candidate (default 1; the
+    /// candidates train with seed 0).
+    #[serde(default = "default_judge_seed")]
+    pub judge_seed: u64,
+    /// Forward models trained as further controller candidates beside `archs`' pairs: `tune`
+    /// pairs each with every inverse model and keeps what its judges rate best (e.g. an LSTM
+    /// forward model, 2–2.5× more accurate than the TCN's with enough data). An architecture
+    /// here must not be in `archs`.
+    #[serde(default)]
+    pub forward_archs: Vec<String>,
     /// Inverse models trained as further controller candidates beside `archs`' pairs: `tune`
     /// pairs each with every forward model of `archs` and keeps what validates best (e.g. the
     /// LSTM inverse of the accurate controller). An architecture here must not be in `archs`.
@@ -187,6 +199,35 @@ pub struct Recipe {
     /// --controller-config --extend`), then every model trained and tuned again on the whole.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub closed_loop: Option<ClosedLoopRecipe>,
+}
+
+/// What a trained model is for in `tune`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum ModelRole {
+    /// A forward model the controller may use (`tune --forward`).
+    Forward,
+    /// `tune --inverse`.
+    Inverse,
+    /// Rates the candidates only (`tune --judge`).
+    Judge,
+}
+
+/// One `bowden train` of a unit's recipe.
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct TrainJob {
+    arch: String,
+    direction: &'static str,
+    role: ModelRole,
+    /// `train --seed` (None: its default, 0).
+    seed: Option<u64>,
+    /// The model's file name in the unit's models directory.
+    file: String,
+    /// The step's name after `train-` (round suffix apart).
+    step: String,
+}
+
+fn default_judge_seed() -> u64 {
+    1
 }
 
 /// `[recipe.closed_loop]`: what the second, compensated collection round records.
@@ -302,23 +343,28 @@ impl TransferConfig {
                 return Err(format!("recipe.judge_archs: `{a}` appears twice"));
             }
         }
-        for (i, a) in r.inverse_archs.iter().enumerate() {
-            a.parse::<Arch>()
-                .map_err(|e| format!("recipe.inverse_archs[{i}]: {e}"))?;
-            if r.inverse_archs[..i].contains(a) {
-                return Err(format!("recipe.inverse_archs: `{a}` appears twice"));
-            }
-            if r.archs.contains(a) {
-                return Err(format!(
-                    "recipe.inverse_archs: `{a}` is in recipe.archs already (trained in both directions)"
-                ));
+        for (field, list) in [("inverse_archs", &r.inverse_archs), ("forward_archs", &r.forward_archs)] {
+            for (i, a) in list.iter().enumerate() {
+                a.parse::<Arch>().map_err(|e| format!("recipe.{field}[{i}]: {e}"))?;
+                if list[..i].contains(a) {
+                    return Err(format!("recipe.{field}: `{a}` appears twice"));
+                }
+                if r.archs.contains(a) {
+                    return Err(format!(
+                        "recipe.{field}: `{a}` is in recipe.archs already (trained in both directions)"
+                    ));
+                }
             }
         }
         for (arch, o) in &r.per_arch {
-            if !r.archs.contains(arch) && !r.judge_archs.contains(arch) && !r.inverse_archs.contains(arch) {
+            if !r.archs.contains(arch)
+                && !r.judge_archs.contains(arch)
+                && !r.inverse_archs.contains(arch)
+                && !r.forward_archs.contains(arch)
+            {
                 return Err(format!(
-                    "recipe.per_arch.{arch}: not one of recipe.archs {:?}, recipe.judge_archs {:?} or recipe.inverse_archs {:?}",
-                    r.archs, r.judge_archs, r.inverse_archs
+                    "recipe.per_arch.{arch}: not one of recipe.archs {:?}, recipe.judge_archs {:?}, recipe.inverse_archs {:?} or recipe.forward_archs {:?}",
+                    r.archs, r.judge_archs, r.inverse_archs, r.forward_archs
                 ));
             }
             if o.epochs == Some(0) || o.early_stop == Some(0) {
@@ -424,8 +470,62 @@ impl Recipe {
         self.per_arch.get(arch).and_then(|o| o.precision).unwrap_or_default()
     }
 
-    /// The `bowden train` arguments of one model of the recipe.
-    fn train_args(&self, arch: &str, direction: &str, threads: usize, data: &Path, model: &Path) -> Vec<String> {
+    /// Every model the recipe trains, in order: each of `archs` forward and inverse, then
+    /// `forward_archs`, the judges, `inverse_archs`. A judge of an architecture that is also a
+    /// forward candidate is a second training with `judge_seed`, in a file of its own.
+    fn training_jobs(&self) -> Vec<TrainJob> {
+        let l = self.seq_len;
+        let job = |arch: &String, direction: &'static str, role: ModelRole, judge_copy: bool| {
+            let suffix = if judge_copy { "-judge" } else { "" };
+            TrainJob {
+                arch: arch.clone(),
+                direction,
+                role,
+                seed: judge_copy.then_some(self.judge_seed),
+                file: format!("{arch}_{direction}{}_L{l}.onnx", suffix.replace('-', "_")),
+                step: format!("{arch}-{direction}{suffix}"),
+            }
+        };
+        let mut jobs = Vec::new();
+        for a in &self.archs {
+            jobs.push(job(a, "forward", ModelRole::Forward, false));
+            jobs.push(job(a, "inverse", ModelRole::Inverse, false));
+        }
+        jobs.extend(
+            self.forward_archs
+                .iter()
+                .map(|a| job(a, "forward", ModelRole::Forward, false)),
+        );
+        jobs.extend(
+            self.judge_archs
+                .iter()
+                .map(|a| job(a, "forward", ModelRole::Judge, self.is_forward_candidate(a))),
+        );
+        jobs.extend(
+            self.inverse_archs
+                .iter()
+                .map(|a| job(a, "inverse", ModelRole::Inverse, false)),
+        );
+        jobs
+    }
+
+    /// True when `arch` is trained as a forward model the controller may use.
+    fn is_forward_candidate(&self, arch: &str) -> bool {
+        self.archs.iter().chain(&self.forward_archs).any(|a| a == arch)
+    }
+
+    /// The `bowden train` arguments of one model of the recipe (`seed`: `train --seed`, left
+    /// to its default 0 when `None`, so the steps of recipes without judges' seeds keep their
+    /// stamps).
+    fn train_args(
+        &self,
+        arch: &str,
+        direction: &str,
+        seed: Option<u64>,
+        threads: usize,
+        data: &Path,
+        model: &Path,
+    ) -> Vec<String> {
         let (epochs, early_stop) = self.training(arch);
         let mut args: Vec<String> = vec![
             "train".into(),
@@ -440,6 +540,9 @@ impl Recipe {
         ];
         if let Some(e) = early_stop {
             args.extend(["--early-stop".into(), e.to_string()]);
+        }
+        if let Some(seed) = seed {
+            args.extend(["--seed".into(), seed.to_string()]);
         }
         // f32 is not passed, so the steps of a recipe without the key keep their stamps.
         let precision = self.precision(arch);
@@ -878,39 +981,23 @@ fn train_and_tune(
     let _ = std::fs::create_dir_all(&models);
     let (mut fwd, mut inv, mut judges) = (Vec::new(), Vec::new(), Vec::new());
     let mut trained = Vec::new();
-    let jobs = r
-        .archs
-        .iter()
-        .flat_map(|a| [(a, "forward"), (a, "inverse")])
-        .chain(
-            r.judge_archs
-                .iter()
-                .filter(|a| !r.archs.contains(a))
-                .map(|a| (a, "forward")),
-        )
-        .chain(r.inverse_archs.iter().map(|a| (a, "inverse")));
-    for (arch, direction) in jobs {
-        {
-            let model = models.join(format!("{arch}_{direction}_L{}.onnx", r.seq_len));
-            let (json, svg) = bowden_learning::report::sidecar_paths(&model);
-            let args = r.train_args(arch, direction, ctx.threads, data, &model);
-            let name = format!("train-{arch}-{direction}{round}");
-            runner.step(
-                &name,
-                Action::Exe(args),
-                "",
-                &[collect_step.into()],
-                &[model.clone(), json, svg],
-            )?;
-            trained.push(name);
-            if r.judge_archs.contains(arch) && direction == "forward" {
-                judges.push(model.clone());
-            }
-            if direction == "inverse" {
-                inv.push(model);
-            } else if r.archs.contains(arch) {
-                fwd.push(model);
-            } // else a judge only.
+    for job in r.training_jobs() {
+        let model = models.join(&job.file);
+        let (json, svg) = bowden_learning::report::sidecar_paths(&model);
+        let args = r.train_args(&job.arch, job.direction, job.seed, ctx.threads, data, &model);
+        let name = format!("train-{}{round}", job.step);
+        runner.step(
+            &name,
+            Action::Exe(args),
+            "",
+            &[collect_step.into()],
+            &[model.clone(), json, svg],
+        )?;
+        trained.push(name);
+        match job.role {
+            ModelRole::Forward => fwd.push(model),
+            ModelRole::Inverse => inv.push(model),
+            ModelRole::Judge => judges.push(model),
         }
     }
     // 4. Choose the settings.
@@ -928,11 +1015,10 @@ fn train_and_tune(
             "--inverse".into(),
             join(&inv),
         ];
-        // A judge that is also a controller model judges already (tune rates every
-        // candidate by the other forward models).
-        let judge_only: Vec<PathBuf> = judges.iter().filter(|j| !fwd.contains(j)).cloned().collect();
-        if !judge_only.is_empty() {
-            args.extend(["--judge".into(), join(&judge_only)]);
+        // Judges are never candidates (a judge of a candidate's architecture is trained
+        // again with another seed), so every candidate is rated by models it did not use.
+        if !judges.is_empty() {
+            args.extend(["--judge".into(), join(&judges)]);
         }
         args.extend(["--base".into(), s(&ctx.base_controller), "--out".into(), s(&controller)]);
         Action::Exe(args)
@@ -1075,10 +1161,7 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
         records: Vec::new(),
         stamps: Default::default(),
         total_steps: {
-            let train_and_tune = 1
-                + 2 * r.archs.len()
-                + r.judge_archs.iter().filter(|a| !r.archs.contains(a)).count()
-                + r.inverse_archs.len();
+            let train_and_tune = 1 + r.training_jobs().len();
             let rounds = if r.closed_loop.is_some() { 2 } else { 1 };
             let evaluations = if r.feedback.is_some() { 2 } else { 1 };
             rounds * (1 + train_and_tune)
@@ -1959,10 +2042,32 @@ fn markdown(rep: &Report) -> String {
                 )
             })
             .collect::<String>(),
-        if r.judge_archs.is_empty() {
+        if r.forward_archs.is_empty() {
             String::new()
         } else {
-            format!("; judges (forward only, `tune --judge`): {}", r.judge_archs.join(", "))
+            format!("; further forward candidates: {}", r.forward_archs.join(", "))
+        } + &if r.judge_archs.is_empty() {
+            String::new()
+        } else {
+            let seeded: Vec<&str> = r
+                .judge_archs
+                .iter()
+                .filter(|a| r.is_forward_candidate(a))
+                .map(String::as_str)
+                .collect();
+            format!(
+                "; judges (forward only, `tune --judge`): {}{}",
+                r.judge_archs.join(", "),
+                if seeded.is_empty() {
+                    String::new()
+                } else {
+                    format!(
+                        " ({} trained again with `--seed {}`, apart from the candidate)",
+                        seeded.join(", "),
+                        r.judge_seed
+                    )
+                }
+            )
         } + &if r.inverse_archs.is_empty() {
             String::new()
         } else {
@@ -3258,6 +3363,92 @@ heldout_units = [1, 2]
     }
 
     #[test]
+    fn a_judge_of_a_candidate_architecture_is_trained_apart_with_its_own_seed() {
+        let text = OK.replace(
+            "archs = [\"tcn\"]",
+            "archs = [\"tcn\"]\nforward_archs = [\"lstm\"]\njudge_archs = [\"lstm\"]\ninverse_archs = [\"lstm\"]",
+        );
+        let c = cfg(&text).unwrap();
+        let jobs = c.recipe.training_jobs();
+        let got: Vec<(&str, &str, ModelRole, Option<u64>, &str)> = jobs
+            .iter()
+            .map(|j| (j.step.as_str(), j.file.as_str(), j.role, j.seed, j.direction))
+            .collect();
+        let l = c.recipe.seq_len;
+        assert_eq!(
+            got,
+            [
+                (
+                    "tcn-forward",
+                    format!("tcn_forward_L{l}.onnx").as_str(),
+                    ModelRole::Forward,
+                    None,
+                    "forward"
+                ),
+                (
+                    "tcn-inverse",
+                    format!("tcn_inverse_L{l}.onnx").as_str(),
+                    ModelRole::Inverse,
+                    None,
+                    "inverse"
+                ),
+                (
+                    "lstm-forward",
+                    format!("lstm_forward_L{l}.onnx").as_str(),
+                    ModelRole::Forward,
+                    None,
+                    "forward"
+                ),
+                (
+                    "lstm-forward-judge",
+                    format!("lstm_forward_judge_L{l}.onnx").as_str(),
+                    ModelRole::Judge,
+                    Some(1),
+                    "forward"
+                ),
+                (
+                    "lstm-inverse",
+                    format!("lstm_inverse_L{l}.onnx").as_str(),
+                    ModelRole::Inverse,
+                    None,
+                    "inverse"
+                ),
+            ]
+        );
+        // The judge's training says its seed; the candidates' do not (their stamps stay).
+        let (data, model) = (Path::new("/u/data"), Path::new("/u/models/m.onnx"));
+        let judge = c
+            .recipe
+            .train_args("lstm", "forward", jobs[3].seed, 2, data, model)
+            .join(" ");
+        assert!(judge.contains("--seed 1"), "{judge}");
+        assert!(!c
+            .recipe
+            .train_args("lstm", "forward", None, 2, data, model)
+            .contains(&"--seed".to_string()));
+        let c = cfg(&text.replace("epochs = 3", "epochs = 3\njudge_seed = 7")).unwrap();
+        assert_eq!(c.recipe.training_jobs()[3].seed, Some(7));
+        // A judge of an architecture nobody sends commands with is the one training, as before.
+        let c = cfg(&OK.replace("archs = [\"tcn\"]", "archs = [\"tcn\"]\njudge_archs = [\"lstm\"]")).unwrap();
+        let judge = &c.recipe.training_jobs()[2];
+        assert_eq!(
+            (judge.step.as_str(), judge.role, judge.seed),
+            ("lstm-forward", ModelRole::Judge, None)
+        );
+        // forward_archs is validated like inverse_archs.
+        let with = |f: &str| OK.replace("archs = [\"tcn\"]", &format!("archs = [\"tcn\"]\nforward_archs = {f}"));
+        let e = cfg(&with("[\"tcn\"]")).unwrap_err();
+        assert!(
+            e.contains("recipe.forward_archs") && e.contains("both directions"),
+            "{e}"
+        );
+        let e = cfg(&with("[\"gru\"]")).unwrap_err();
+        assert!(e.contains("recipe.forward_archs[0]"), "{e}");
+        let e = cfg(&with("[\"lstm\", \"lstm\"]")).unwrap_err();
+        assert!(e.contains("twice"), "{e}");
+    }
+
+    #[test]
     fn per_arch_training_overrides_only_its_architecture() {
         let text = OK
             .replace("archs = [\"tcn\"]", "archs = [\"tcn\", \"lstm\"]\nearly_stop = 40")
@@ -3275,14 +3466,14 @@ heldout_units = [1, 2]
         for a in ["tcn", "lstm"] {
             assert!(!c
                 .recipe
-                .train_args(a, "forward", 2, data, model)
+                .train_args(a, "forward", None, 2, data, model)
                 .contains(&"--precision".to_string()));
         }
         // With it, only that architecture trains in bf16.
         let c = cfg(&text.replace("early_stop = 8\n", "early_stop = 8\nprecision = \"bf16\"\n")).unwrap();
-        let lstm = c.recipe.train_args("lstm", "inverse", 2, data, model).join(" ");
+        let lstm = c.recipe.train_args("lstm", "inverse", None, 2, data, model).join(" ");
         assert!(lstm.contains("--epochs 30 --early-stop 8 --precision bf16"), "{lstm}");
-        let tcn = c.recipe.train_args("tcn", "inverse", 2, data, model).join(" ");
+        let tcn = c.recipe.train_args("tcn", "inverse", None, 2, data, model).join(" ");
         assert!(!tcn.contains("--precision"), "{tcn}");
         let e = cfg(&text.replace("early_stop = 8\n", "early_stop = 8\nprecision = \"f16\"\n")).unwrap_err();
         assert!(e.contains("f16") && e.contains("precision"), "{e}");
