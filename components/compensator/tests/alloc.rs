@@ -245,8 +245,10 @@ fn root() -> &'static std::path::Path {
 }
 
 /// With the window prefixes on the worker thread, in both modes (`Wait`, `Newest`), on both
-/// shipped controllers, through history steps, `prepare`, a reset, a rejected target and a hot
-/// model swap (the worker's own allocations are off the cycle and not counted).
+/// shipped controllers and on the shape `bench transfer`'s `tune` chooses (the real-time
+/// config with an LSTM forward model and an LSTM inverse), through history steps, `prepare`, a
+/// reset, a rejected target and a hot model swap (the worker's own allocations are off the
+/// cycle and not counted).
 #[test]
 fn steps_with_the_prefix_worker_do_not_allocate() {
     let robot = Robot::paper_default();
@@ -254,12 +256,25 @@ fn steps_with_the_prefix_worker_do_not_allocate() {
     let mut targets = random_trajectory(&robot, 100, step, 3);
     targets.extend(random_trajectory(&robot, 30, 3.5 * step, 4));
     targets.extend(random_trajectory(&robot, 400, 0.06, 5));
-    for name in ["controller.toml", "controller-accurate.toml"] {
+    let models = root().join("../../models");
+    let lstm_pair = Some(("lstm_forward_L80.onnx", "lstm_inverse_L80.onnx"));
+    for (name, files) in [
+        ("controller.toml", None),
+        ("controller-accurate.toml", None),
+        ("controller.toml", lstm_pair),
+    ] {
         let base = ControllerConfig::load(root().join("../../configs").join(name)).unwrap();
         let load = |field: &'static str, p: &Option<std::path::PathBuf>| {
             Model::load(base.resolve_model_path(field, p.as_ref().unwrap()).unwrap()).unwrap()
         };
-        let (fwd, inv) = (load("model_fwd", &base.model_fwd), load("model_inv", &base.model_inv));
+        let (fwd, inv) = match files {
+            None => (load("model_fwd", &base.model_fwd), load("model_inv", &base.model_inv)),
+            Some((f, i)) => (
+                Model::load(models.join(f)).unwrap(),
+                Model::load(models.join(i)).unwrap(),
+            ),
+        };
+        let name = format!("{name} {files:?}");
         let other_inv = Model::load(root().join("../../models/tcn_inverse_L80.onnx")).unwrap();
         for sync in [PrefixSync::Wait, PrefixSync::Newest] {
             for mode in [Mode::Paper, Mode::Newton] {
