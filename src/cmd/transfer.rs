@@ -356,6 +356,14 @@ impl TransferConfig {
                 }
             }
         }
+        if r.judge_seed == 0 && r.judge_archs.iter().any(|a| r.is_forward_candidate(a)) {
+            return Err(
+                "recipe.judge_seed: 0 is the candidates' own seed, so a judge of a candidate's \
+                 architecture would be that candidate (same data, same seed, same weights); use \
+                 another"
+                    .into(),
+            );
+        }
         for (arch, o) in &r.per_arch {
             if !r.archs.contains(arch)
                 && !r.judge_archs.contains(arch)
@@ -3428,6 +3436,8 @@ heldout_units = [1, 2]
             .contains(&"--seed".to_string()));
         let c = cfg(&text.replace("epochs = 3", "epochs = 3\njudge_seed = 7")).unwrap();
         assert_eq!(c.recipe.training_jobs()[3].seed, Some(7));
+        let e = cfg(&text.replace("epochs = 3", "epochs = 3\njudge_seed = 0")).unwrap_err();
+        assert!(e.contains("recipe.judge_seed"), "{e}");
         // A judge of an architecture nobody sends commands with is the one training, as before.
         let c = cfg(&OK.replace("archs = [\"tcn\"]", "archs = [\"tcn\"]\njudge_archs = [\"lstm\"]")).unwrap();
         let judge = &c.recipe.training_jobs()[2];
