@@ -3378,49 +3378,20 @@ heldout_units = [1, 2]
         );
         let c = cfg(&text).unwrap();
         let jobs = c.recipe.training_jobs();
-        let got: Vec<(&str, &str, ModelRole, Option<u64>, &str)> = jobs
+        // step, file, role, seed, direction: one line per trained model.
+        let got: Vec<String> = jobs
             .iter()
-            .map(|j| (j.step.as_str(), j.file.as_str(), j.role, j.seed, j.direction))
+            .map(|j| format!("{} {} {:?} {:?} {}", j.step, j.file, j.role, j.seed, j.direction))
             .collect();
-        let l = c.recipe.seq_len;
+        assert_eq!(c.recipe.seq_len, 80);
         assert_eq!(
             got,
             [
-                (
-                    "tcn-forward",
-                    format!("tcn_forward_L{l}.onnx").as_str(),
-                    ModelRole::Forward,
-                    None,
-                    "forward"
-                ),
-                (
-                    "tcn-inverse",
-                    format!("tcn_inverse_L{l}.onnx").as_str(),
-                    ModelRole::Inverse,
-                    None,
-                    "inverse"
-                ),
-                (
-                    "lstm-forward",
-                    format!("lstm_forward_L{l}.onnx").as_str(),
-                    ModelRole::Forward,
-                    None,
-                    "forward"
-                ),
-                (
-                    "lstm-forward-judge",
-                    format!("lstm_forward_judge_L{l}.onnx").as_str(),
-                    ModelRole::Judge,
-                    Some(1),
-                    "forward"
-                ),
-                (
-                    "lstm-inverse",
-                    format!("lstm_inverse_L{l}.onnx").as_str(),
-                    ModelRole::Inverse,
-                    None,
-                    "inverse"
-                ),
+                "tcn-forward tcn_forward_L80.onnx Forward None forward",
+                "tcn-inverse tcn_inverse_L80.onnx Inverse None inverse",
+                "lstm-forward lstm_forward_L80.onnx Forward None forward",
+                "lstm-forward-judge lstm_forward_judge_L80.onnx Judge Some(1) forward",
+                "lstm-inverse lstm_inverse_L80.onnx Inverse None inverse",
             ]
         );
         // The judge's training says its seed; the candidates' do not (their stamps stay).
