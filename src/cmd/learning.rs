@@ -120,6 +120,12 @@ pub struct TrainArgs {
     /// twice as fast on CPUs with AVX-512 BF16; weights, validation and export stay f32).
     #[arg(long, default_value = "f32", value_parser = super::choice(PRECISIONS), ignore_case = true)]
     precision: String,
+    /// Train on histories decimated by up to N samples per model step as well (each window's
+    /// decimation drawn from 1..=N every epoch; a decimated step never skips a reversal of the
+    /// commands): the model learns the larger steps a compensator sends, which eq. (16) data
+    /// never makes. 1 = consecutive samples only (the paper).
+    #[arg(long, default_value_t = 1)]
+    decimation: usize,
     #[command(flatten)]
     split: SplitArgs,
 }
@@ -329,6 +335,7 @@ pub fn run(c: Command) -> Result<()> {
                 .parse::<Precision>()
                 .map_err(anyhow::Error::msg)
                 .context("--precision")?;
+            cfg.decimation = a.decimation;
             let (split, phy) = a.split.parse()?;
             let data = super::dataset_dir("--data", &a.data)?;
             let (json, svg) = bowden_learning::report::sidecar_paths(&a.out);

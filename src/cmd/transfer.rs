@@ -165,6 +165,10 @@ pub struct Recipe {
     pub early_stop: Option<usize>,
     /// `train --seq-len`.
     pub seq_len: usize,
+    /// `train --decimation` of every model (default 1: consecutive samples only, and not
+    /// passed, so recipes without the key keep their fingerprints and stamps).
+    #[serde(default = "default_decimation", skip_serializing_if = "is_one")]
+    pub decimation: usize,
     /// Per-architecture `epochs` / `early_stop` replacing the two above for that architecture
     /// (an LSTM epoch costs about 25 TCN epochs, and the LSTM inverse overfits after ~15).
     #[serde(default)]
@@ -228,6 +232,14 @@ struct TrainJob {
 
 fn default_judge_seed() -> u64 {
     1
+}
+
+fn default_decimation() -> usize {
+    1
+}
+
+fn is_one(v: &usize) -> bool {
+    *v == 1
 }
 
 /// `[recipe.closed_loop]`: what the second, compensated collection round records.
@@ -363,6 +375,9 @@ impl TransferConfig {
                  another"
                     .into(),
             );
+        }
+        if r.decimation == 0 {
+            return Err("recipe.decimation: must be at least 1 (1 = consecutive samples only)".into());
         }
         for (arch, o) in &r.per_arch {
             if !r.archs.contains(arch)
@@ -551,6 +566,9 @@ impl Recipe {
         }
         if let Some(seed) = seed {
             args.extend(["--seed".into(), seed.to_string()]);
+        }
+        if self.decimation != 1 {
+            args.extend(["--decimation".into(), self.decimation.to_string()]);
         }
         // f32 is not passed, so the steps of a recipe without the key keep their stamps.
         let precision = self.precision(arch);
@@ -2032,7 +2050,12 @@ fn markdown(rep: &Report) -> String {
         r.excitation,
         r.seq_len,
         r.epochs,
-        r.early_stop.map(|e| format!(" --early-stop {e}")).unwrap_or_default(),
+        r.early_stop.map(|e| format!(" --early-stop {e}")).unwrap_or_default()
+            + &if r.decimation == 1 {
+                String::new()
+            } else {
+                format!(" --decimation {}", r.decimation)
+            },
         r.archs.join(", "),
         r.per_arch
             .keys()
@@ -3427,6 +3450,36 @@ heldout_units = [1, 2]
         assert!(e.contains("recipe.forward_archs[0]"), "{e}");
         let e = cfg(&with("[\"lstm\", \"lstm\"]")).unwrap_err();
         assert!(e.contains("twice"), "{e}");
+    }
+
+    #[test]
+    fn the_recipe_decimation_reaches_every_training_and_is_validated() {
+        let (data, model) = (Path::new("/u/data"), Path::new("/u/models/m.onnx"));
+        // Absent: 1, not passed (the steps of recipes without the key keep their stamps).
+        let c = cfg(OK).unwrap();
+        assert_eq!(c.recipe.decimation, 1);
+        assert!(!c
+            .recipe
+            .train_args("tcn", "forward", None, 2, data, model)
+            .contains(&"--decimation".to_string()));
+        let text = OK.replace("epochs = 3", "epochs = 3\ndecimation = 4\njudge_archs = [\"tcn\"]");
+        let c = cfg(&text).unwrap();
+        for job in c.recipe.training_jobs() {
+            let args = c
+                .recipe
+                .train_args(&job.arch, job.direction, job.seed, 2, data, model)
+                .join(" ");
+            assert!(args.contains("--decimation 4"), "{}: {args}", job.step);
+        }
+        let e = cfg(&OK.replace("epochs = 3", "epochs = 3\ndecimation = 0")).unwrap_err();
+        assert!(e.contains("recipe.decimation"), "{e}");
+        // The shipped paper-protocol recipe is a valid config and decimates by 4.
+        let shipped =
+            std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/transfer-paper-protocol.toml"))
+                .unwrap();
+        let c = cfg(&shipped).unwrap();
+        assert_eq!((c.recipe.decimation, c.recipe.samples, c.recipe.epochs), (4, 1802, 30));
+        assert_eq!(c.recipe.excitation, "paper");
     }
 
     #[test]

@@ -156,10 +156,12 @@ pub fn load_windows(
     phy: PhySource,
 ) -> Result<(WindowSet, DataSummary), LearnError> {
     let (ds, manifest) = Dataset::read_dir(dir)?;
-    let ws = WindowSet::build(&ds, cfg.direction, cfg.seq_len, split, phy).map_err(|source| LearnError::Window {
+    let window_error = |source| LearnError::Window {
         dir: dir.to_path_buf(),
         source,
-    })?;
+    };
+    let mut ws = WindowSet::build(&ds, cfg.direction, cfg.seq_len, split, phy).map_err(window_error)?;
+    ws.set_decimation(cfg.decimation).map_err(window_error)?;
     let summary = DataSummary {
         dir: dir.display().to_string(),
         csv_fnv1a64: manifest.csv_fnv1a64,

@@ -64,6 +64,12 @@ impl DataSupport {
             }
             prev = Some(t);
         }
+        // Decimated histories step further than consecutive samples: the model saw those too.
+        if let Some(dec) = ws.decimated_cmd_step_max_deg() {
+            for (m, d) in cmd_step_max_deg.iter_mut().zip(dec) {
+                *m = m.max(d);
+            }
+        }
         let gap_max_deg = gaps
             .iter_mut()
             .map(|g| {

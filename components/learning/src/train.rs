@@ -71,6 +71,20 @@ pub struct TrainConfig {
     /// for the LSTM's recurrent matrices. Absent = f32, and f32 is not written.
     #[serde(default, skip_serializing_if = "is_f32")]
     pub precision: Precision,
+    /// Largest history decimation of the training windows ([`WindowSet::set_decimation`]):
+    /// each epoch draws every training window's decimation uniformly from 1..=this, so an
+    /// epoch is as long as without it. 1 = consecutive samples only (the paper). Absent = 1,
+    /// and 1 is not written.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub decimation: usize,
+}
+
+fn one() -> usize {
+    1
+}
+
+fn is_one(v: &usize) -> bool {
+    *v == 1
 }
 
 fn is_zero(v: &f64) -> bool {
@@ -98,6 +112,7 @@ impl TrainConfig {
             precision: Precision::F32,
             threads: 1,
             anchor: 0.0,
+            decimation: 1,
         }
     }
 }
@@ -538,8 +553,18 @@ fn train_from(
             "an anchor weight needs starting weights (fine-tuning)".into(),
         ));
     }
+    if data.decimation != cfg.decimation {
+        return Err(TrainError::Config(format!(
+            "the windows are decimated up to {} but the config asks for {}",
+            data.decimation, cfg.decimation
+        )));
+    }
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5eed_5eed_5eed_5eed);
+    // A separate stream for the decimations, so that decimation 1 keeps the batch order (and
+    // the trained bits) of before it existed.
+    let mut rng_decimation = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0xdec1_3a7e_dec1_3a7e);
     let mut order = data.train.clone();
+    let mut ids = Vec::with_capacity(order.len());
     let j = data.joints;
     let mut epochs = Vec::with_capacity(cfg.epochs);
     let mut best: Option<(usize, f64, Vec<f32>)> = None;
@@ -556,8 +581,9 @@ fn train_from(
     for epoch in 1..=cfg.epochs {
         let t0 = Instant::now();
         order.shuffle(&mut rng);
+        data.decimated_ids(&order, &mut rng_decimation, &mut ids);
         let mut sse = 0.0;
-        for batch in order.chunks(cfg.batch_size) {
+        for batch in ids.chunks(cfg.batch_size) {
             sse += engine.step(data, batch)?;
         }
         let train_loss = sse / (order.len() * j) as f64;

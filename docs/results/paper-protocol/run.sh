@@ -12,12 +12,17 @@
 #   OUT         work directory (default out/paper-protocol-e$EPOCHS); steps already done there are kept
 #   EPOCHS      training epochs per direction (default 8000, the paper's)
 #   EARLY_STOP  stop a training after this many epochs without a better validation RMSE (default: none)
+#   DECIMATION  train --decimation (default 1, the paper: consecutive samples only; 4 is what
+#               configs/transfer-paper-protocol.toml trains with)
 #   REPEATS     evaluation repeats (default 5, the paper's)
 # The two trainings run side by side, one thread each.
 set -euo pipefail
 BOWDEN=${BOWDEN:-target/release/bowden}
 EPOCHS=${EPOCHS:-8000}
-OUT=${OUT:-out/paper-protocol-e$EPOCHS}
+DECIMATION=${DECIMATION:-1}
+suffix=""
+[ "$DECIMATION" = 1 ] || suffix="-d$DECIMATION"
+OUT=${OUT:-out/paper-protocol-e$EPOCHS$suffix}
 REPEATS=${REPEATS:-5}
 [ -x "$BOWDEN" ] || { echo "run.sh: no bowden binary at $BOWDEN (cargo build --release, or set BOWDEN)" >&2; exit 2; }
 mkdir -p "$OUT/models"
@@ -33,7 +38,7 @@ es=()
 [ -n "${EARLY_STOP:-}" ] && es=(--early-stop "$EARLY_STOP")
 for d in forward inverse; do
     step "train-$d" "$BOWDEN" train --arch tcn --direction "$d" --seq-len 80 --epochs "$EPOCHS" "${es[@]}" \
-        --seed 0 --threads 1 --data "$OUT/data" --out "$OUT/models/tcn_${d}_L80.onnx" --force &
+        --decimation "$DECIMATION" --seed 0 --threads 1 --data "$OUT/data" --out "$OUT/models/tcn_${d}_L80.onnx" --force &
 done
 wait
 for d in forward inverse; do [ -f "$OUT/train-$d.done" ] || { echo "run.sh: train-$d failed" >&2; exit 1; }; done
