@@ -3369,13 +3369,7 @@ heldout_units = [1, 2]
         let with = |j: &str| OK.replace("archs = [\"tcn\"]", &format!("archs = [\"tcn\"]\ninverse_archs = {j}"));
         let c = cfg(&with("[\"lstm\"]")).unwrap();
         assert_eq!(c.recipe.inverse_archs, ["lstm"]);
-        let e = cfg(&with("[\"tcn\"]")).unwrap_err();
-        assert!(
-            e.contains("recipe.inverse_archs") && e.contains("both directions"),
-            "{e}"
-        );
-        let e = cfg(&with("[\"gru\"]")).unwrap_err();
-        assert!(e.contains("recipe.inverse_archs[0]"), "{e}");
+        assert_candidate_list_is_validated("inverse_archs");
         let text = with("[\"lstm\"]").replace("[[family]]", "[recipe.per_arch.lstm]\nepochs = 30\n[[family]]");
         assert_eq!(cfg(&text).unwrap().recipe.training("lstm"), (30, None));
     }
@@ -3440,14 +3434,20 @@ heldout_units = [1, 2]
             ("lstm-forward", ModelRole::Judge, None)
         );
         // forward_archs is validated like inverse_archs.
-        let with = |f: &str| OK.replace("archs = [\"tcn\"]", &format!("archs = [\"tcn\"]\nforward_archs = {f}"));
+        assert_candidate_list_is_validated("forward_archs");
+    }
+
+    /// `recipe.FIELD` (a list of further candidate architectures) refuses an architecture of
+    /// `archs`, an unknown one and one given twice, naming the field.
+    fn assert_candidate_list_is_validated(field: &str) {
+        let with = |v: &str| OK.replace("archs = [\"tcn\"]", &format!("archs = [\"tcn\"]\n{field} = {v}"));
         let e = cfg(&with("[\"tcn\"]")).unwrap_err();
         assert!(
-            e.contains("recipe.forward_archs") && e.contains("both directions"),
+            e.contains(&format!("recipe.{field}")) && e.contains("both directions"),
             "{e}"
         );
         let e = cfg(&with("[\"gru\"]")).unwrap_err();
-        assert!(e.contains("recipe.forward_archs[0]"), "{e}");
+        assert!(e.contains(&format!("recipe.{field}[0]")), "{e}");
         let e = cfg(&with("[\"lstm\", \"lstm\"]")).unwrap_err();
         assert!(e.contains("twice"), "{e}");
     }
