@@ -362,7 +362,8 @@ impl WindowSet {
     /// whenever it crosses a dead band.
     ///
     /// Training windows whose decimated span would read a validation sample are dropped (and
-    /// counted in `purged`). Errors on `max_decimation = 0`.
+    /// counted in `purged`; a later call with a smaller decimation does not bring them back, so
+    /// call it once, after building). Errors on `max_decimation = 0`.
     pub fn set_decimation(&mut self, max_decimation: usize) -> Result<(), WindowError> {
         if max_decimation == 0 {
             return Err(WindowError::Decimation(max_decimation));

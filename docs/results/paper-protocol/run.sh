@@ -20,8 +20,10 @@ set -euo pipefail
 BOWDEN=${BOWDEN:-target/release/bowden}
 EPOCHS=${EPOCHS:-8000}
 DECIMATION=${DECIMATION:-1}
+SEED=${SEED:-0}
 suffix=""
 [ "$DECIMATION" = 1 ] || suffix="-d$DECIMATION"
+[ "$SEED" = 0 ] || suffix="$suffix-s$SEED"
 OUT=${OUT:-out/paper-protocol-e$EPOCHS$suffix}
 REPEATS=${REPEATS:-5}
 [ -x "$BOWDEN" ] || { echo "run.sh: no bowden binary at $BOWDEN (cargo build --release, or set BOWDEN)" >&2; exit 2; }
@@ -38,7 +40,7 @@ es=()
 [ -n "${EARLY_STOP:-}" ] && es=(--early-stop "$EARLY_STOP")
 for d in forward inverse; do
     step "train-$d" "$BOWDEN" train --arch tcn --direction "$d" --seq-len 80 --epochs "$EPOCHS" "${es[@]}" \
-        --decimation "$DECIMATION" --seed 0 --threads 1 --data "$OUT/data" --out "$OUT/models/tcn_${d}_L80.onnx" --force &
+        --decimation "$DECIMATION" --seed "$SEED" --threads 1 --data "$OUT/data" --out "$OUT/models/tcn_${d}_L80.onnx" --force &
 done
 wait
 for d in forward inverse; do [ -f "$OUT/train-$d.done" ] || { echo "run.sh: train-$d failed" >&2; exit 1; }; done
