@@ -2,7 +2,8 @@
 //! paper's protocol cut short (eq. 16 commands only, 30 epochs, a few hundred configurations)
 //! on robots of every hysteresis family bowden simulates. Each calibrated mode with the
 //! shipped refinement settings and `[safety]` on must track no worse than sending the targets
-//! unchanged, by the plant's truth; the drift guard must hold on a long run.
+//! unchanged, by the plant's truth: in joint MAE with the shipped joint rating, and in joint
+//! MAE, tip position and tip orientation with `never_worse_tip`.
 //!
 //! The data is recorded on the plant directly (truth, no camera) so the test stays short; the
 //! vision loop is exercised by `bench transfer` and `tests/evaluate_short.rs`.
@@ -59,12 +60,42 @@ fn poor_pair(ds: &Dataset, dir: &Path, tag: &str) -> (PathBuf, PathBuf) {
     (out[0].clone(), out[1].clone())
 }
 
-/// Joint MAE (truth, deg) of holding each target's command for the paper's pause; and the
-/// largest |q_cmd − q_desired| sent.
-fn track(plant: &mut Plant, comp: Option<&mut Compensator>, targets: &[JointsDeg]) -> (f64, f64) {
+/// Errors (truth) of holding each target's command for the paper's pause, and the largest
+/// |q_cmd − q_desired| sent.
+#[derive(Debug, Clone, Copy)]
+struct Tracked {
+    /// Joint MAE, deg.
+    joint_deg: f64,
+    /// Mean tip position error, mm.
+    pos_mm: f64,
+    /// Mean tip orientation error, deg.
+    rot_deg: f64,
+    /// Largest |q_cmd − q_desired|, deg.
+    gap_deg: f64,
+}
+
+impl Tracked {
+    /// The metrics where `self` is worse than `base`, named.
+    fn worse_than(&self, base: &Tracked) -> Vec<String> {
+        let mut v = Vec::new();
+        for (what, a, b) in [
+            ("joint MAE", self.joint_deg, base.joint_deg),
+            ("tip position", self.pos_mm, base.pos_mm),
+            ("tip orientation", self.rot_deg, base.rot_deg),
+        ] {
+            if a > b {
+                v.push(format!("{what} {a:.3} > {b:.3}"));
+            }
+        }
+        v
+    }
+}
+
+fn track(plant: &mut Plant, comp: Option<&mut Compensator>, targets: &[JointsDeg]) -> Tracked {
     plant.reset();
+    let robot = plant.robot().clone();
     let mut out = StepOutput::default();
-    let (mut sum, mut gap) = (0.0, 0.0f64);
+    let (mut sum, mut pos, mut rot, mut gap) = (0.0, 0.0, 0.0, 0.0f64);
     let mut comp = comp;
     for q_d in targets {
         let cmd: JointsDeg = match comp.as_deref_mut() {
@@ -77,12 +108,21 @@ fn track(plant: &mut Plant, comp: Option<&mut Compensator>, targets: &[JointsDeg
         for k in 0..N_JOINTS {
             gap = gap.max((cmd[k] - q_d[k]).abs());
         }
-        let cmd = plant.robot().clamp_command_to_limits(&cmd);
+        let cmd = robot.clamp_command_to_limits(&cmd);
         plant.settle_joints(&cmd, PAUSE_S, DT_S).unwrap();
         let q = plant.q_phy_deg();
         sum += (0..N_JOINTS).map(|k| (q[k] - q_d[k]).abs()).sum::<f64>();
+        let (want, got) = (robot.fk(q_d).ee, robot.fk(&q).ee);
+        pos += (got.translation.vector - want.translation.vector).norm();
+        rot += (want.rotation.inverse() * got.rotation).angle().to_degrees();
     }
-    (sum / (targets.len() * N_JOINTS) as f64, gap)
+    let n = targets.len() as f64;
+    Tracked {
+        joint_deg: sum / (n * N_JOINTS as f64),
+        pos_mm: pos / n,
+        rot_deg: rot / n,
+        gap_deg: gap,
+    }
 }
 
 fn controller(fwd: &Path, inv: &Path, mode: Mode, safety: SafetyConfig) -> ControllerConfig {
@@ -96,12 +136,12 @@ fn controller(fwd: &Path, inv: &Path, mode: Mode, safety: SafetyConfig) -> Contr
     c
 }
 
-/// Joint MAE (truth) per (mode, safety variant), and the uncalibrated MAE, on one plant file.
+/// Errors (truth) per (mode, safety variant), and uncalibrated, on one plant file.
 struct FamilyResult {
     plant: String,
-    uncalibrated: f64,
-    /// (mode, variant index, MAE, largest correction)
-    runs: Vec<(Mode, usize, f64, f64)>,
+    uncalibrated: Tracked,
+    /// (mode, variant index, errors)
+    runs: Vec<(Mode, usize, Tracked)>,
 }
 
 fn run_family(plant_file: &str, tmp: &Path, variants: &[SafetyConfig]) -> FamilyResult {
@@ -118,7 +158,7 @@ fn run_family(plant_file: &str, tmp: &Path, variants: &[SafetyConfig]) -> Family
     let (fwd, inv) = poor_pair(&ds, tmp, &tag);
     // Unseen targets: another seed's eq. (16) path (one model step apart).
     let targets = bowden_trajectory::dataset_commands(&robot, 12, 99);
-    let (uncalibrated, _) = track(&mut plant, None, &targets);
+    let uncalibrated = track(&mut plant, None, &targets);
     let mut r = FamilyResult {
         plant: plant_file.into(),
         uncalibrated,
@@ -127,8 +167,8 @@ fn run_family(plant_file: &str, tmp: &Path, variants: &[SafetyConfig]) -> Family
     for mode in [Mode::Paper, Mode::Newton] {
         for (v, safety) in variants.iter().enumerate() {
             let mut comp = Compensator::from_config(&controller(&fwd, &inv, mode, safety.clone()), &robot).unwrap();
-            let (mae, gap) = track(&mut plant, Some(&mut comp), &targets);
-            r.runs.push((mode, v, mae, gap));
+            let t = track(&mut plant, Some(&mut comp), &targets);
+            r.runs.push((mode, v, t));
         }
     }
     r
@@ -150,17 +190,41 @@ fn poor_models_never_track_worse_than_uncalibrated_on_any_family() {
         shipped.never_worse && shipped.support,
         "the shipped config runs the safe refinement"
     );
+    let tip = SafetyConfig {
+        never_worse_tip: true,
+        ..shipped.clone()
+    };
     for plant_file in FAMILIES {
-        let r = run_family(plant_file, tmp.path(), &[shipped.clone(), SafetyConfig::default()]);
-        eprintln!("{}: uncalibrated joint MAE {:.2}°", r.plant, r.uncalibrated);
-        for (mode, v, mae, gap) in &r.runs {
-            let what = if *v == 0 { "shipped [safety]" } else { "no safety" };
-            eprintln!("  {mode} {what}: {mae:.2}° (largest correction {gap:.1}°)");
-            if *v == 0 && *mae > r.uncalibrated {
-                failures.push(format!(
-                    "{}: {mode} with safety {mae:.2}° > uncalibrated {:.2}°",
-                    r.plant, r.uncalibrated
-                ));
+        let r = run_family(
+            plant_file,
+            tmp.path(),
+            &[shipped.clone(), SafetyConfig::default(), tip.clone()],
+        );
+        let u = r.uncalibrated;
+        eprintln!(
+            "{}: uncalibrated joint MAE {:.2}°, tip {:.2} mm / {:.2}°",
+            r.plant, u.joint_deg, u.pos_mm, u.rot_deg
+        );
+        for (mode, v, t) in &r.runs {
+            let what = ["shipped [safety]", "no safety", "shipped + tip rating"][*v];
+            eprintln!(
+                "  {mode} {what}: {:.2}°, {:.2} mm / {:.2}° (largest correction {:.1}°)",
+                t.joint_deg, t.pos_mm, t.rot_deg, t.gap_deg
+            );
+            // The shipped joint rating bounds the joints; with the tip rating the tip is bounded
+            // too. (The joint rating alone let paper mode's tip orientation on the Bouc–Wen
+            // robot end 4 % worse than uncalibrated here: 25.15° against 24.20°.)
+            let checked = match v {
+                0 => t
+                    .worse_than(&u)
+                    .into_iter()
+                    .filter(|w| w.starts_with("joint"))
+                    .collect(),
+                2 => t.worse_than(&u),
+                _ => Vec::new(),
+            };
+            for w in checked {
+                failures.push(format!("{}: {mode} {what}: {w} (uncalibrated)", r.plant));
             }
         }
     }
@@ -185,18 +249,34 @@ fn safety_variants_on_poor_models() {
         }
     }
     variants.push(SafetyConfig {
+        never_worse_tip: true,
+        ..SafetyConfig::on()
+    });
+    variants.push(SafetyConfig {
         never_worse: true,
         ..SafetyConfig::default()
     });
     variants.push(SafetyConfig::default());
     for plant_file in FAMILIES {
         let r = run_family(plant_file, tmp.path(), &variants);
-        println!("{}: uncalibrated {:.2}°", r.plant, r.uncalibrated);
-        for (mode, v, mae, gap) in &r.runs {
+        let u = r.uncalibrated;
+        println!(
+            "{}: uncalibrated {:.2}°, {:.2} mm / {:.2}°",
+            r.plant, u.joint_deg, u.pos_mm, u.rot_deg
+        );
+        for (mode, v, t) in &r.runs {
             let s = &variants[*v];
             println!(
-                "  {mode:7} support {} step×{} guard×{} never_worse {}: {mae:.2}° ({gap:.1}°)",
-                s.support, s.step_scale, s.correction_scale, s.never_worse
+                "  {mode:7} support {} step×{} guard×{} never_worse {} tip {}: {:.2}°, {:.2} mm / {:.2}° ({:.1}°)",
+                s.support,
+                s.step_scale,
+                s.correction_scale,
+                s.never_worse,
+                s.never_worse_tip,
+                t.joint_deg,
+                t.pos_mm,
+                t.rot_deg,
+                t.gap_deg
             );
         }
     }

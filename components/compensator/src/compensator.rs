@@ -222,6 +222,24 @@ impl std::fmt::Debug for Compensator {
 
 /// Hands the worker the newest forward (sent) and inverse (desired) history windows of the
 /// models it handles; returns both windows.
+/// The tip pose of joint angles `q_deg` (the first [`N_JOINTS`] entries), by the robot's
+/// forward kinematics (eq. (3)).
+fn tip_pose(robot: &Robot, q_deg: &[f64]) -> bowden_kinematics::Pose {
+    let mut a = [0.0f64; N_JOINTS];
+    a.copy_from_slice(&q_deg[..N_JOINTS]);
+    robot.fk(&a).ee
+}
+
+/// Position (mm) and orientation (deg) distance of the tip at `q_deg` from `target`, as the
+/// evaluation measures them; NaN becomes +∞ (never admissible).
+fn tip_distance(robot: &Robot, target: &bowden_kinematics::Pose, q_deg: &[f64]) -> (f64, f64) {
+    let reached = tip_pose(robot, q_deg);
+    let pos = (reached.translation.vector - target.translation.vector).norm();
+    let rot = (target.rotation.inverse() * reached.rotation).angle().to_degrees();
+    let finite = |v: f64| if v.is_nan() { f64::INFINITY } else { v };
+    (finite(pos), finite(rot))
+}
+
 fn post_histories<'h>(w: &mut PrefixWorker, h: &'h History, fwd_l: usize, inv_l: usize) -> (&'h [f64], &'h [f64]) {
     let fh = h.sent_tail(fwd_l - 1);
     let ih = h.desired_tail(inv_l - 1);
@@ -824,7 +842,10 @@ impl Compensator {
             }
         }
         // Never worse, by the model's own rating: the result must beat where the refinement
-        // started, and sending the target unchanged.
+        // started, and sending the target unchanged. With `never_worse_tip`, a candidate must
+        // also not move the predicted tip further from the target's pose than sending the target
+        // unchanged would, in position and in orientation apart: the joint rating is a sum, and
+        // a poor model can trade one joint for another in a way the tip pays for.
         let mut chosen = Chosen::Refined;
         if self.safety.never_worse && self.mode != Mode::Uncalibrated {
             if let Some(fwd) = &mut self.fwd {
@@ -836,25 +857,12 @@ impl Compensator {
                         c
                     }
                 };
-                let mut p = [0.0f64; MAX_JOINTS];
                 if !res.pred_at_q {
                     fwd.eval(&q[..j], &mut pred[..j]);
                     res.evals += 1;
                     res.pred_at_q = true;
                 }
-                let mut best = cost(&pred[..j]);
-                if q[..j] != start[..j] {
-                    fwd.eval(&start[..j], &mut p[..j]);
-                    res.evals += 1;
-                    let c = cost(&p[..j]);
-                    if c < best {
-                        best = c;
-                        q = start;
-                        pred = p;
-                        chosen = Chosen::Start;
-                    }
-                }
-                // The target as the output stage would send it.
+                // The target as the output stage would send it, and the model's rating of it.
                 let mut d = [0.0f64; MAX_JOINTS];
                 d[..j].copy_from_slice(q_des);
                 if self.joint_limits {
@@ -862,10 +870,63 @@ impl Compensator {
                     a.copy_from_slice(&d[..N_JOINTS]);
                     d[..N_JOINTS].copy_from_slice(&self.robot.clamp_command_to_limits(&a));
                 }
-                if d[..j] != q[..j] {
-                    fwd.eval(&d[..j], &mut p[..j]);
+                let tip = self.safety.never_worse_tip && j == N_JOINTS;
+                // The model's rating of the target sent unchanged: needed first with the tip
+                // rating (it is the reference), otherwise only if it differs from the pick.
+                let mut p_d = None;
+                let tip_ref = if tip {
+                    let mut p = pred;
+                    if d[..j] != q[..j] {
+                        fwd.eval(&d[..j], &mut p[..j]);
+                        res.evals += 1;
+                    }
+                    p_d = Some(p);
+                    let target = tip_pose(&self.robot, q_des);
+                    let dist = tip_distance(&self.robot, &target, &p[..j]);
+                    Some((target, dist))
+                } else {
+                    None
+                };
+                // Admissible: not rated further from the target's tip pose than the target sent
+                // unchanged (always, without the tip rating).
+                let robot = &self.robot;
+                let admissible = |p: &[f64]| match &tip_ref {
+                    None => true,
+                    Some((target, (pos_d, rot_d))) => {
+                        let (pos, rot) = tip_distance(robot, target, p);
+                        pos <= *pos_d && rot <= *rot_d
+                    }
+                };
+                let mut best = if admissible(&pred[..j]) {
+                    cost(&pred[..j])
+                } else {
+                    f64::INFINITY
+                };
+                if q[..j] != start[..j] {
+                    let mut p = [0.0f64; MAX_JOINTS];
+                    fwd.eval(&start[..j], &mut p[..j]);
                     res.evals += 1;
-                    if cost(&p[..j]) < best {
+                    let c = cost(&p[..j]);
+                    if c < best && admissible(&p[..j]) {
+                        best = c;
+                        q = start;
+                        pred = p;
+                        chosen = Chosen::Start;
+                    }
+                }
+                if d[..j] != q[..j] {
+                    let p = match p_d {
+                        Some(p) => p,
+                        None => {
+                            let mut p = [0.0f64; MAX_JOINTS];
+                            fwd.eval(&d[..j], &mut p[..j]);
+                            res.evals += 1;
+                            p
+                        }
+                    };
+                    // With the tip rating the target unchanged is the reference, so it is what
+                    // is sent when nothing else is admissible.
+                    if cost(&p[..j]) < best || (tip && best == f64::INFINITY) {
                         q = d;
                         pred = p;
                         chosen = Chosen::Desired;

@@ -168,6 +168,13 @@ pub struct SafetyConfig {
     /// a command the model rates worse than where the refinement started, or than sending
     /// the target unchanged, is never sent.
     pub never_worse: bool,
+    /// With `never_worse`: a candidate is also sent only if the model rates the tip no
+    /// further from the target's pose than sending the target unchanged, in position and in
+    /// orientation apart (the robot's forward kinematics of the predicted angles). The joint
+    /// rating is a sum over the joints; a poor model can trade one joint for another in a way
+    /// the tip pays for (docs/architecture.md, "Safe refinement").
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub never_worse_tip: bool,
     /// Drift guard: |q_cmd − q_desired| ≤ `correction_scale` × the largest command-to-physical
     /// gap of the training data, per joint. The sent commands feed the forward model's
     /// history, so a model that keeps asking for more cannot walk the commands away. 0 = off.
@@ -176,6 +183,10 @@ pub struct SafetyConfig {
 
 fn one() -> f64 {
     1.0
+}
+
+fn is_false(v: &bool) -> bool {
+    !*v
 }
 
 impl Default for SafetyConfig {
@@ -187,6 +198,7 @@ impl Default for SafetyConfig {
             support_scale: 1.0,
             step_scale: 1.0,
             never_worse: false,
+            never_worse_tip: false,
             correction_scale: 0.0,
         }
     }
@@ -205,6 +217,7 @@ impl SafetyConfig {
             // better on every path (docs/results/paper-protocol/).
             step_scale: 1.0,
             never_worse: true,
+            never_worse_tip: false,
             correction_scale: 1.0,
         }
     }
@@ -395,6 +408,13 @@ impl ControllerConfig {
                 "must be in [0, 10] (0 = off)",
             );
         }
+        if sf.never_worse_tip && !sf.never_worse {
+            return bad(
+                "safety.never_worse_tip",
+                "true".into(),
+                "rates the never-worse choice's candidates by the tip too: needs never_worse = true",
+            );
+        }
         if let Err((field, value, reason)) = self.feedback.check() {
             return bad(field, value, reason);
         }
@@ -497,6 +517,26 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("z.toml") && e.contains("magic"), "{e}");
+    }
+
+    #[test]
+    fn the_tip_rating_parses_and_needs_never_worse() {
+        let on = SHIPPED.replace("never_worse = true", "never_worse = true\nnever_worse_tip = true");
+        assert_ne!(on, SHIPPED, "the shipped config has never_worse = true");
+        let c = ControllerConfig::parse(&on, Path::new("tip.toml")).unwrap();
+        assert!(c.safety.never_worse && c.safety.never_worse_tip);
+        assert!(
+            !ControllerConfig::shipped().safety.never_worse_tip,
+            "off unless asked for"
+        );
+        let bad = SHIPPED.replace("never_worse = true", "never_worse = false\nnever_worse_tip = true");
+        let e = ControllerConfig::parse(&bad, Path::new("w.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("w.toml") && e.contains("safety.never_worse_tip") && e.contains("never_worse = true"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -102,16 +102,25 @@ fn step_does_not_allocate() {
 
     // Every safeguard active: a forward model with support metadata (support bounds, drift
     // guard) and never-worse, in both refining modes.
-    for mode in [Mode::Paper, Mode::Newton] {
+    // With and without the tip rating (forward kinematics of three predictions per step).
+    for (mode, tip) in [
+        (Mode::Paper, false),
+        (Mode::Newton, false),
+        (Mode::Paper, true),
+        (Mode::Newton, true),
+    ] {
         let mut c = cfg.clone();
         c.mode = mode;
-        c.safety = bowden_compensator::SafetyConfig::on();
+        c.safety = bowden_compensator::SafetyConfig {
+            never_worse_tip: tip,
+            ..bowden_compensator::SafetyConfig::on()
+        };
         let fwd = common::supported("tcn_forward_L80_J5_s0");
         let inv = Model::load(common::fixture("tcn_inverse_L80_J5_s0")).unwrap();
         let mut comp = Compensator::from_models(&c, &robot, Some(fwd), Some(inv)).unwrap();
         assert!(comp.support().is_some());
         let ((evals, _), allocs) = count(|| run_steps(&mut comp, &targets));
-        assert_eq!(allocs, 0, "{mode} with safety: {allocs} allocations");
+        assert_eq!(allocs, 0, "{mode} with safety (tip rating {tip}): {allocs} allocations");
         assert!(evals > targets.len() as u64);
         assert!(comp.safety_counts().limited > 0, "{mode}: the bounds were active");
     }

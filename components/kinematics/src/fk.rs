@@ -44,6 +44,9 @@ pub fn dh_transform(alpha_prev: f64, a_prev: f64, d: f64, theta: f64) -> nalgebr
     )
 }
 
+/// A rigid pose in the base frame (mm, rotation): what [`FkResult`]'s frames are.
+pub type Pose = Isometry3<f64>;
+
 /// Poses of the manipulator's characteristic frames in the base frame, for one configuration.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FkResult {

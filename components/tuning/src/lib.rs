@@ -614,6 +614,10 @@ pub fn config_toml(
     safety.insert("support_scale".into(), Value::Float(c.safety.support_scale));
     safety.insert("step_scale".into(), Value::Float(c.safety.step_scale));
     safety.insert("never_worse".into(), Value::Boolean(c.safety.never_worse));
+    if c.safety.never_worse_tip {
+        // Written only when on, so configs tuned without it keep their bytes.
+        safety.insert("never_worse_tip".into(), Value::Boolean(true));
+    }
     safety.insert("correction_scale".into(), Value::Float(c.safety.correction_scale));
     doc.insert("safety".into(), Value::Table(safety));
     let body = toml::to_string(&doc).map_err(|e| TuneError::BaseConfig(e.to_string()))?;

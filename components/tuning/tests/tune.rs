@@ -91,6 +91,21 @@ fn settings_come_from_validation_data_and_reproduce_bit_for_bit() {
     assert_eq!(cfg.newton.prior_weight, a.config.newton.prior_weight);
     assert!(ta.starts_with("# Controller settings chosen by `bowden tune`"));
 
+    // The base's tip rating is replayed and written; without it the key is not written at all,
+    // so configs tuned before it existed keep their bytes.
+    assert!(!ta.contains("never_worse_tip"), "{ta}");
+    let tip_text = text.replace("never_worse = true", "never_worse = true\nnever_worse_tip = true");
+    let tip_base = ControllerConfig::parse(&tip_text, Path::new("tip.toml")).unwrap();
+    let t = tune(&ds, &fwd, &inv, &tip_base, &robot, &opts, &mut |_, _| {}).unwrap();
+    assert!(t.config.safety.never_worse_tip);
+    let tt = config_toml(&tip_text, &t, "f.onnx", "i.onnx").unwrap();
+    assert!(
+        ControllerConfig::parse(&tt, &tmp.path().join("t.toml"))
+            .unwrap()
+            .safety
+            .never_worse_tip
+    );
+
     // A judge-only model (one too slow for the cycle) rates the only forward model's candidates.
     let solo = TuneOptions {
         judges: vec![fwd[1].clone()],
