@@ -236,23 +236,8 @@ fn compensate(a: CompensateArgs) -> anyhow::Result<()> {
         s.mean_forward_evals,
         s.stop_reasons
     );
-    if comp.safety().never_worse {
-        // What the never-worse choice sent (docs/architecture.md, "Safe refinement").
-        let c = comp.safety_counts();
-        eprintln!(
-            "safe refinement{}: sent the refinement's result {}, its start {}, the target unchanged {}; \
-             a bound moved a candidate in {} of {} steps",
-            if comp.safety().never_worse_tip {
-                " (tip rating)"
-            } else {
-                ""
-            },
-            c.steps - c.start_chosen - c.desired_chosen,
-            c.start_chosen,
-            c.desired_chosen,
-            c.limited,
-            c.steps
-        );
+    if let Some(line) = comp.safety_summary() {
+        eprintln!("{line}");
     }
     Ok(())
 }

@@ -337,6 +337,9 @@ impl Stage for CompensatorStage {
             self.comp.mode(),
             self.comp.rejected_inputs() + self.bad_size
         )];
+        if let Some(line) = self.comp.safety_summary() {
+            v.push(line);
+        }
         if let Some(d) = &self.dither {
             let (draws, scaled, max_tip) = d.counts();
             v.push(format!(

@@ -429,6 +429,29 @@ impl Compensator {
         self.safety_counts
     }
 
+    /// One line on what the never-worse choice sent since the start (None when it is off): a
+    /// high share of the target sent unchanged says the models do not fit this robot.
+    pub fn safety_summary(&self) -> Option<String> {
+        if !self.safety.never_worse {
+            return None;
+        }
+        let c = self.safety_counts;
+        Some(format!(
+            "safe refinement{}: sent the refinement's result {}, its start {}, the target unchanged {}; \
+             a bound moved a candidate in {} of {} steps",
+            if self.safety.never_worse_tip {
+                " (tip rating)"
+            } else {
+                ""
+            },
+            c.steps - c.start_chosen - c.desired_chosen,
+            c.start_chosen,
+            c.desired_chosen,
+            c.limited,
+            c.steps
+        ))
+    }
+
     /// The per-joint interval every candidate of this step must lie in: the training data's
     /// command range, a step from the forward model's newest history entry no larger than
     /// the data's largest, and the drift guard around `q_des` (docs/architecture.md, "Safe

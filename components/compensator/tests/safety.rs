@@ -78,6 +78,15 @@ fn the_sent_command_is_never_rated_worse_than_the_target_unchanged() {
             (counts.start_chosen, counts.desired_chosen),
             (u64::from(chosen[1]), u64::from(chosen[2]))
         );
+        // The line the compensator node and `bowden compensate` print at the end.
+        let line = comp.safety_summary().expect("never_worse is on");
+        assert!(
+            line.contains(&format!(
+                "result {}, its start {}, the target unchanged {};",
+                chosen[0], chosen[1], chosen[2]
+            )) && line.ends_with("of 300 steps"),
+            "{line}"
+        );
         // Newton minimises the model's own rating, so its result is sent where the model trusts
         // it; Algorithm 1's α = 0.001 barely moves the untrained inverse's estimate, which an
         // untrained forward model rates worse than the target itself.
