@@ -24,7 +24,9 @@ pub enum Command {
     /// `iterations` and `forward_evals` (refinement iterations and forward-model evaluations),
     /// `stop_reason` (none | threshold | max-iterations | budget | stalled | rejected-input),
     /// `elapsed_ns` (wall time of the step). All angles in degrees. The summary on stderr
-    /// gives the mean and max predicted error; run with `--mode uncalibrated` to compare.
+    /// gives the mean and max predicted error, and with `[safety] never_worse` how often the
+    /// refinement's result, its start or the target unchanged was sent (many targets sent
+    /// unchanged: the models do not fit this robot); run with `--mode uncalibrated` to compare.
     Compensate(CompensateArgs),
 }
 
