@@ -112,9 +112,9 @@ fn track(plant: &mut Plant, comp: Option<&mut Compensator>, targets: &[JointsDeg
         plant.settle_joints(&cmd, PAUSE_S, DT_S).unwrap();
         let q = plant.q_phy_deg();
         sum += (0..N_JOINTS).map(|k| (q[k] - q_d[k]).abs()).sum::<f64>();
-        let (want, got) = (robot.fk(q_d).ee, robot.fk(&q).ee);
-        pos += (got.translation.vector - want.translation.vector).norm();
-        rot += (want.rotation.inverse() * got.rotation).angle().to_degrees();
+        let (p, r) = bowden_kinematics::pose_distance(&robot.fk(q_d).ee, &robot.fk(&q).ee);
+        pos += p;
+        rot += r;
     }
     let n = targets.len() as f64;
     Tracked {

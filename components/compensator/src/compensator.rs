@@ -233,9 +233,7 @@ fn tip_pose(robot: &Robot, q_deg: &[f64]) -> bowden_kinematics::Pose {
 /// Position (mm) and orientation (deg) distance of the tip at `q_deg` from `target`, as the
 /// evaluation measures them; NaN becomes +∞ (never admissible).
 fn tip_distance(robot: &Robot, target: &bowden_kinematics::Pose, q_deg: &[f64]) -> (f64, f64) {
-    let reached = tip_pose(robot, q_deg);
-    let pos = (reached.translation.vector - target.translation.vector).norm();
-    let rot = (target.rotation.inverse() * reached.rotation).angle().to_degrees();
+    let (pos, rot) = bowden_kinematics::pose_distance(target, &tip_pose(robot, q_deg));
     let finite = |v: f64| if v.is_nan() { f64::INFINITY } else { v };
     (finite(pos), finite(rot))
 }

@@ -103,10 +103,7 @@ fn the_sent_command_is_never_rated_worse_than_the_target_unchanged() {
 /// The tip pose's distance (position mm, orientation °) from `target` at predicted angles `p`,
 /// as the evaluation measures it.
 fn tip_distance(robot: &Robot, target: &[f64; 5], p: &[f64; 5]) -> (f64, f64) {
-    let (a, b) = (robot.fk(target).ee, robot.fk(p).ee);
-    let pos = (b.translation.vector - a.translation.vector).norm();
-    let rot = (a.rotation.inverse() * b.rotation).angle().to_degrees();
-    (pos, rot)
+    bowden_kinematics::pose_distance(&robot.fk(target).ee, &robot.fk(p).ee)
 }
 
 /// The joint rating is a sum: a poor model can trade joints so that the sum improves while the

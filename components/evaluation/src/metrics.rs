@@ -40,8 +40,8 @@ pub struct JointErrors {
 /// Position (mm) and orientation (deg) distances between a desired and a reached pose.
 pub fn pose_distance(desired: &Isometry3<f64>, reached: &Isometry3<f64>) -> (Vector3<f64>, f64, f64) {
     let d = reached.translation.vector - desired.translation.vector;
-    let rot = (desired.rotation.inverse() * reached.rotation).angle().to_degrees();
-    (d, d.norm(), rot)
+    let (pos, rot) = bowden_kinematics::pose_distance(desired, reached);
+    (d, pos, rot)
 }
 
 /// Table V from pairs (desired pose, reached pose).

@@ -47,6 +47,14 @@ pub fn dh_transform(alpha_prev: f64, a_prev: f64, d: f64, theta: f64) -> nalgebr
 /// A rigid pose in the base frame (mm, rotation): what [`FkResult`]'s frames are.
 pub type Pose = Isometry3<f64>;
 
+/// Position (mm) and orientation (deg) distance of `reached` from `desired`: |Δp| and the
+/// angle of the relative rotation, the two tip errors of the paper's Table V.
+pub fn pose_distance(desired: &Pose, reached: &Pose) -> (f64, f64) {
+    let pos = (reached.translation.vector - desired.translation.vector).norm();
+    let rot = (desired.rotation.inverse() * reached.rotation).angle().to_degrees();
+    (pos, rot)
+}
+
 /// Poses of the manipulator's characteristic frames in the base frame, for one configuration.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FkResult {

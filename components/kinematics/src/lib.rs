@@ -19,7 +19,7 @@ pub mod markers;
 
 pub use cables::CableModel;
 pub use config::{ConfigError, RobotConfig};
-pub use fk::{dh_transform, hinge_length_tr, FkResult, Pose};
+pub use fk::{dh_transform, hinge_length_tr, pose_distance, FkResult, Pose};
 pub use ik::{IkError, IkOptions, IkSolution};
 
 /// Number of joints of this manipulator: q1..q5.
