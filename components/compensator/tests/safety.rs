@@ -35,6 +35,32 @@ fn targets() -> Vec<[f64; 5]> {
     random_trajectory(&Robot::paper_default(), 300, 3.0 * 5f64.sqrt(), 17)
 }
 
+/// Steps `comp` through `targets()` and, for every step, evaluates an independent evaluator of
+/// `fwd` on the same sent history at the sent command and at the target as the output stage
+/// would send it; `check(q_desired, sent, prediction at sent, prediction at the target, out)`.
+fn judged_run(
+    comp: &mut Compensator,
+    fwd: &Model,
+    robot: &Robot,
+    mut check: impl FnMut(&[f64; 5], &[f64; 5], &[f64; 5], &[f64; 5], &StepOutput),
+) {
+    let mut judge = fwd.evaluator();
+    let mut sent_hist = vec![0.0; 79 * 5];
+    let mut out = StepOutput::default();
+    let (mut p_sent, mut p_des) = ([0.0; 5], [0.0; 5]);
+    for q_d in targets() {
+        comp.step(&q_d, &mut out).unwrap();
+        let sent: [f64; 5] = core::array::from_fn(|k| out.q_cmd_deg[k]);
+        let des = robot.clamp_command_to_limits(&q_d);
+        judge.set_history(&sent_hist);
+        judge.eval(&sent, &mut p_sent);
+        judge.eval(&des, &mut p_des);
+        check(&q_d, &sent, &p_sent, &p_des, &out);
+        sent_hist.copy_within(5.., 0);
+        sent_hist[78 * 5..].copy_from_slice(&sent);
+    }
+}
+
 #[test]
 fn the_sent_command_is_never_rated_worse_than_the_target_unchanged() {
     let robot = Robot::paper_default();
@@ -48,29 +74,17 @@ fn the_sent_command_is_never_rated_worse_than_the_target_unchanged() {
         let mut comp =
             Compensator::from_models(&cfg(mode, safety.clone()), &robot, Some(fwd.clone()), Some(inv.clone())).unwrap();
         // An independent evaluation of the same forward model on the same sent history.
-        let mut judge = fwd.evaluator();
-        let mut sent_hist = vec![0.0; 79 * 5];
-        let mut out = StepOutput::default();
-        let (mut p_sent, mut p_des) = ([0.0; 5], [0.0; 5]);
         let mut chosen = [0u32; 3];
-        for q_d in targets() {
-            comp.step(&q_d, &mut out).unwrap();
-            let sent: [f64; 5] = core::array::from_fn(|k| out.q_cmd_deg[k]);
-            let des = robot.clamp_command_to_limits(&q_d);
-            judge.set_history(&sent_hist);
-            judge.eval(&sent, &mut p_sent);
-            judge.eval(&des, &mut p_des);
+        judged_run(&mut comp, &fwd, &robot, |q_d, sent, p_sent, p_des, out| {
             let cost = |p: &[f64; 5]| (0..5).map(|k| (p[k] - q_d[k]).powi(2)).sum::<f64>();
             assert!(
-                cost(&p_sent) <= cost(&p_des) * (1.0 + 1e-9) + 1e-12,
+                cost(p_sent) <= cost(p_des) * (1.0 + 1e-9) + 1e-12,
                 "{mode}: sent {sent:?} rated {:.4} worse than the target {:.4}",
-                cost(&p_sent),
-                cost(&p_des)
+                cost(p_sent),
+                cost(p_des)
             );
             chosen[out.chosen as usize] += 1;
-            sent_hist.copy_within(5.., 0);
-            sent_hist[78 * 5..].copy_from_slice(&sent);
-        }
+        });
         eprintln!("{mode}: refined / start / target chosen {chosen:?}");
         let counts = comp.safety_counts();
         assert_eq!(counts.steps, 300);
@@ -129,19 +143,9 @@ fn with_the_tip_rating_the_predicted_tip_is_never_further_than_the_target_unchan
             };
             let mut comp =
                 Compensator::from_models(&cfg(mode, safety), &robot, Some(fwd.clone()), Some(inv.clone())).unwrap();
-            let mut judge = fwd.evaluator();
-            let mut sent_hist = vec![0.0; 79 * 5];
-            let mut out = StepOutput::default();
-            let (mut p_sent, mut p_des) = ([0.0; 5], [0.0; 5]);
-            for q_d in targets() {
-                comp.step(&q_d, &mut out).unwrap();
-                let sent: [f64; 5] = core::array::from_fn(|k| out.q_cmd_deg[k]);
-                let des = robot.clamp_command_to_limits(&q_d);
-                judge.set_history(&sent_hist);
-                judge.eval(&sent, &mut p_sent);
-                judge.eval(&des, &mut p_des);
-                let (pos_s, rot_s) = tip_distance(&robot, &q_d, &p_sent);
-                let (pos_d, rot_d) = tip_distance(&robot, &q_d, &p_des);
+            judged_run(&mut comp, &fwd, &robot, |q_d, sent, p_sent, p_des, out| {
+                let (pos_s, rot_s) = tip_distance(&robot, q_d, p_sent);
+                let (pos_d, rot_d) = tip_distance(&robot, q_d, p_des);
                 let further = pos_s > pos_d * (1.0 + 1e-9) + 1e-9 || rot_s > rot_d * (1.0 + 1e-9) + 1e-9;
                 worse[tip as usize] += further as u32;
                 if tip {
@@ -152,9 +156,7 @@ fn with_the_tip_rating_the_predicted_tip_is_never_further_than_the_target_unchan
                     );
                     chosen_tip[out.chosen as usize] += 1;
                 }
-                sent_hist.copy_within(5.., 0);
-                sent_hist[78 * 5..].copy_from_slice(&sent);
-            }
+            });
         }
         eprintln!("{mode}: predicted tip further than the target's, joint rating / tip rating: {worse:?}; refined / start / target with the tip rating: {chosen_tip:?}");
         assert!(
