@@ -487,20 +487,21 @@ mod tests {
         assert!(matches!(c.history_rule(), HistoryRule::Distance { .. }));
     }
 
+    /// The error `text` is refused with, as the user sees it (`path` names the file).
+    fn parse_error(text: &str, path: &str) -> String {
+        ControllerConfig::parse(text, Path::new(path)).unwrap_err().to_string()
+    }
+
     #[test]
     fn errors_name_file_and_field() {
         let bad = SHIPPED.replace("alpha = 0.001", "alpha = -1.0");
-        let e = ControllerConfig::parse(&bad, Path::new("x/controller.toml"))
-            .unwrap_err()
-            .to_string();
+        let e = parse_error(&bad, "x/controller.toml");
         assert!(
             e.contains("x/controller.toml") && e.contains("paper.alpha") && e.contains("-1"),
             "{e}"
         );
         let bad = SHIPPED.replace("[budget]", "[budget]\nbudget_ms = 3");
-        let e = ControllerConfig::parse(&bad, Path::new("y.toml"))
-            .unwrap_err()
-            .to_string();
+        let e = parse_error(&bad, "y.toml");
         assert!(e.contains("y.toml") && e.contains("budget_ms"), "{e}");
         let bad: String = SHIPPED
             .lines()
@@ -513,9 +514,7 @@ mod tests {
             })
             .collect::<Vec<_>>()
             .join("\n");
-        let e = ControllerConfig::parse(&bad, Path::new("z.toml"))
-            .unwrap_err()
-            .to_string();
+        let e = parse_error(&bad, "z.toml");
         assert!(e.contains("z.toml") && e.contains("magic"), "{e}");
     }
 
@@ -530,9 +529,7 @@ mod tests {
             "off unless asked for"
         );
         let bad = SHIPPED.replace("never_worse = true", "never_worse = false\nnever_worse_tip = true");
-        let e = ControllerConfig::parse(&bad, Path::new("w.toml"))
-            .unwrap_err()
-            .to_string();
+        let e = parse_error(&bad, "w.toml");
         assert!(
             e.contains("w.toml") && e.contains("safety.never_worse_tip") && e.contains("never_worse = true"),
             "{e}"
