@@ -32,19 +32,57 @@ impl Adam {
     }
 
     pub fn step(&mut self, params: &mut [f32], grad: &[f32]) {
+        let (k, m, v) = self.begin();
+        k.apply(params, grad, m, v);
+    }
+
+    /// Starts one step: its coefficients and the moment buffers, which the caller may split
+    /// into ranges and [`AdamStep::apply`] on different threads (every element is updated
+    /// on its own, so any split gives the bits of [`Adam::step`]).
+    pub fn begin(&mut self) -> (AdamStep, &mut [f32], &mut [f32]) {
         self.t += 1;
         let bc1 = 1.0 - self.beta1.powi(self.t as i32);
         let bc2 = 1.0 - self.beta2.powi(self.t as i32);
-        let step = (self.lr / bc1) as f32;
-        let inv_sqrt_bc2 = (1.0 / bc2.sqrt()) as f32;
-        let (b1, b2, eps) = (self.beta1 as f32, self.beta2 as f32, self.eps as f32);
-        for i in 0..params.len() {
-            let g = grad[i];
-            let m = b1 * self.m[i] + (1.0 - b1) * g;
-            let v = b2 * self.v[i] + (1.0 - b2) * g * g;
-            self.m[i] = m;
-            self.v[i] = v;
-            params[i] -= step * m / (v.sqrt() * inv_sqrt_bc2 + eps);
+        let k = AdamStep {
+            step: (self.lr / bc1) as f32,
+            inv_sqrt_bc2: (1.0 / bc2.sqrt()) as f32,
+            b1: self.beta1 as f32,
+            b2: self.beta2 as f32,
+            eps: self.eps as f32,
+        };
+        (k, &mut self.m, &mut self.v)
+    }
+}
+
+/// The coefficients of one Adam step (see [`Adam::begin`]).
+#[derive(Debug, Clone, Copy)]
+pub struct AdamStep {
+    step: f32,
+    inv_sqrt_bc2: f32,
+    b1: f32,
+    b2: f32,
+    eps: f32,
+}
+
+impl AdamStep {
+    /// Updates `params` from `grad` and the moments `m`, `v` of the same elements. Written
+    /// over zipped slices so it vectorises (no bounds checks); the operations per element
+    /// are those of the scalar loop it replaced, in the same order: the same bits.
+    pub fn apply(&self, params: &mut [f32], grad: &[f32], m: &mut [f32], v: &mut [f32]) {
+        let AdamStep {
+            step,
+            inv_sqrt_bc2,
+            b1,
+            b2,
+            eps,
+        } = *self;
+        for (((p, g), mi), vi) in params.iter_mut().zip(grad).zip(m.iter_mut()).zip(v.iter_mut()) {
+            let g = *g;
+            let mn = b1 * *mi + (1.0 - b1) * g;
+            let vn = b2 * *vi + (1.0 - b2) * g * g;
+            *mi = mn;
+            *vi = vn;
+            *p -= step * mn / (vn.sqrt() * inv_sqrt_bc2 + eps);
         }
     }
 }

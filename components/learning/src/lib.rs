@@ -16,6 +16,7 @@ pub mod arch;
 pub mod bench;
 pub mod candle_ref;
 pub mod dataset;
+pub mod helper;
 pub mod kernels;
 pub mod npy;
 pub mod onnx;

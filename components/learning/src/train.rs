@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 use crate::adam::Adam;
 use crate::arch::{Arch, Direction, ModelSpec, TcnBlock};
 use crate::candle_ref::CandleModel;
+use crate::helper::Helper;
 use crate::kernels::{Net, Precision, Prepared, Workspace};
 use crate::onnx::ModelFile;
 use crate::windows::{overall_rmse, WindowSet};
@@ -180,10 +181,11 @@ enum Engine {
         prep: Prepared,
         adam: Adam,
         shards: Vec<Shard>,
-        /// The helper thread that runs the second shard (none with one thread). It lives as
-        /// long as the engine: a thread spawned per batch cost more than a TCN shard's work
-        /// (one thread 0.30 s per epoch, two 0.26 s), waking one costs a few µs.
-        pool: Option<rayon::ThreadPool>,
+        /// The helper thread that runs the second shard and half of the optimiser (none with
+        /// one thread). It lives as long as the engine: a thread spawned per batch cost more
+        /// than a TCN shard's work (one thread 0.30 s per epoch, two 0.26 s), and it spins
+        /// between forks rather than sleep ([`crate::helper`]).
+        pool: Option<Helper>,
         /// λ and θ₀ of [`TrainConfig::anchor`] when fine-tuning with it.
         anchor: Option<(f32, Vec<f32>)>,
     },
@@ -195,24 +197,11 @@ enum Engine {
     },
 }
 
-/// Runs `a` on this thread and `b` on the helper pool at the same time (or both here, `a`
-/// first, without a pool), and returns both results.
-fn fork2<RA, RB: Send>(
-    pool: Option<&rayon::ThreadPool>,
-    a: impl FnOnce() -> RA,
-    b: impl FnOnce() -> RB + Send,
-) -> (RA, RB) {
-    match pool {
-        Some(p) => {
-            let mut rb = None;
-            // A panic in either is a bug in this crate; the scope re-raises it here after
-            // both have stopped, so no borrow outlives its data.
-            let ra = p.in_place_scope(|s| {
-                s.spawn(|_| rb = Some(b()));
-                a()
-            });
-            (ra, rb.expect("the scope waited for its task"))
-        }
+/// Runs `a` on this thread and `b` on the helper at the same time (or both here, `a` first,
+/// without one), and returns both results.
+fn fork2<RA, RB: Send>(helper: Option<&Helper>, a: impl FnOnce() -> RA, b: impl FnOnce() -> RB + Send) -> (RA, RB) {
+    match helper {
+        Some(h) => h.fork2(a, b),
         None => {
             let ra = a();
             (ra, b())
@@ -243,12 +232,10 @@ impl Engine {
                 let (l, j) = (spec.seq_len, spec.joints);
                 let threads = cfg.threads.clamp(1, SHARDS);
                 let pool = if threads > 1 {
-                    let p = rayon::ThreadPoolBuilder::new()
-                        .num_threads(threads - 1)
-                        .thread_name(|i| format!("bowden-train-{i}"))
-                        .build()
-                        .map_err(|e| TrainError::Config(format!("starting the training helper thread: {e}")))?;
-                    Some(p)
+                    Some(
+                        Helper::new("bowden-train-helper")
+                            .map_err(|e| TrainError::Config(format!("starting the training helper thread: {e}")))?,
+                    )
                 } else {
                     None
                 };
@@ -327,22 +314,42 @@ impl Engine {
                     );
                     a + b
                 };
+                // The shards' gradients summed, the anchor's pull added and Adam applied,
+                // each half of the parameters on its own thread: every element is updated
+                // on its own, so the bits are those of one thread doing it all, and the
+                // helper does not sit idle through the optimiser (≈ 80k parameters: a few
+                // percent of a 2 ms batch).
                 let (first, rest) = shards.split_at_mut(1);
-                let total = &mut first[0].grad;
-                for s in rest.iter() {
-                    for (t, g) in total.iter_mut().zip(&s.grad) {
-                        *t += g;
+                let rest: &[Shard] = rest;
+                let anchor = anchor.as_ref();
+                let (k, m, v) = adam.begin();
+                let update = |lo: usize, p: &mut [f32], total: &mut [f32], m: &mut [f32], v: &mut [f32]| {
+                    let hi = lo + p.len();
+                    for s in rest {
+                        for (t, g) in total.iter_mut().zip(&s.grad[lo..hi]) {
+                            *t += g;
+                        }
                     }
-                }
-                if let Some((lambda, theta0)) = anchor {
-                    // d/dθ λ‖θ − θ₀‖² = 2λ(θ − θ₀).
-                    let k = 2.0 * *lambda;
-                    for ((g, p), p0) in total.iter_mut().zip(params.iter()).zip(theta0.iter()) {
-                        *g += k * (p - p0);
+                    if let Some((lambda, theta0)) = anchor {
+                        // d/dθ λ‖θ − θ₀‖² = 2λ(θ − θ₀).
+                        let pull = 2.0 * *lambda;
+                        for ((g, p), p0) in total.iter_mut().zip(p.iter()).zip(&theta0[lo..hi]) {
+                            *g += pull * (p - p0);
+                        }
                     }
-                }
-                adam.step(params, total);
-                net.prepare(params, prep);
+                    k.apply(p, total, m, v);
+                };
+                let mid = params.len() / 2;
+                let (p0, p1) = params.split_at_mut(mid);
+                let (t0, t1) = first[0].grad.split_at_mut(mid);
+                let (m0, m1) = m.split_at_mut(mid);
+                let (v0, v1) = v.split_at_mut(mid);
+                fork2(
+                    pool.as_ref(),
+                    || update(0, p0, t0, m0, v0),
+                    || update(mid, p1, t1, m1, v1),
+                );
+                net.prepare_for_step(params, prep);
                 Ok(sse)
             }
             Engine::Candle { model, opt, x, y } => {
@@ -366,6 +373,9 @@ impl Engine {
                 pool,
                 ..
             } => {
+                // The steps prepared only what a mixed-precision step reads; validation runs
+                // the f32 forward pass.
+                net.prepare(params, prep);
                 for batch in ids.chunks(chunk) {
                     let ranges = shard_ranges(batch.len());
                     let run = |shard: &mut Shard, (a, b): (usize, usize)| -> Vec<f64> {

@@ -145,6 +145,40 @@ fn same_seed_same_bits_whatever_the_thread_count() {
     assert_ne!(a.model.params, c.model.params);
 }
 
+/// The same with mixed precision, whose step runs the optimiser on both threads, prepares
+/// only what a mixed step reads and accumulates per time step: still the same bits with one
+/// thread or two, and validation (an f32 pass) sees the current weights.
+#[test]
+fn mixed_precision_same_bits_whatever_the_thread_count() {
+    let ds = hysteretic_dataset(1500, 5, 5);
+    let w = WindowSet::build(&ds, Direction::Inverse, 12, SplitConfig::default(), PhySource::Vision).unwrap();
+    for arch in [Arch::Lstm, Arch::TcnLstm] {
+        let mut cfg = TrainConfig::paper(arch, Direction::Inverse, 12, 2, 9);
+        cfg.precision = bowden_learning::kernels::Precision::Bf16;
+        cfg.threads = 1;
+        let a = train(&w, &cfg, None).unwrap();
+        cfg.threads = 2;
+        let b = train(&w, &cfg, None).unwrap();
+        assert_eq!(a.model.params, b.model.params, "{arch}");
+        assert_eq!(a.epochs[1].val_loss, b.epochs[1].val_loss, "{arch}");
+        // Validation ran on the current weights (an f32 pass needs the f32 copies the
+        // mixed steps skip): the best epoch's RMSE is the exported model's own.
+        let own = bowden_learning::train::rmse_deg(&a.model, &w, &w.val).unwrap();
+        assert_eq!(own, a.best().val_rmse_deg, "{arch}");
+        let mut f32_cfg = cfg.clone();
+        f32_cfg.precision = bowden_learning::kernels::Precision::F32;
+        let f = train(&w, &f32_cfg, None).unwrap();
+        assert_ne!(a.model.params, f.model.params, "{arch}: bf16 trained the f32 bits");
+        let rel = (a.best().val_rmse_deg - f.best().val_rmse_deg).abs() / f.best().val_rmse_deg;
+        assert!(
+            rel < 0.1,
+            "{arch}: bf16 {} vs f32 {}",
+            a.best().val_rmse_deg,
+            f.best().val_rmse_deg
+        );
+    }
+}
+
 #[test]
 fn early_stopping_stops() {
     let ds = hysteretic_dataset(800, 5, 6);

@@ -77,8 +77,16 @@ simd_fn! {
 /// `[pairs(k)][n]`: element `(p, j)` pairs rows 2p and 2p + 1 of column j. This is B's
 /// packing, and k-major A's when A = Xᵀ (then `n` = A's m).
 pub fn pack_rows(k: usize, n: usize, x: &[f32], ld: usize, out: &mut Vec<u32>) {
+    out.resize(pairs(k) * n, 0);
+    pack_rows_into(k, n, x, ld, out);
+}
+
+/// [`pack_rows`] into the first `pairs(k) · n` elements of `out` (which must hold them):
+/// packing a matrix a block of rows at a time, each block written where the whole
+/// matrix's packing would put it, gives the same elements when every block but the last
+/// has an even number of rows.
+pub fn pack_rows_into(k: usize, n: usize, x: &[f32], ld: usize, out: &mut [u32]) {
     let kp = pairs(k);
-    out.resize(kp * n, 0);
     for p in 0..kp {
         let lo = &x[2 * p * ld..2 * p * ld + n];
         let dst = &mut out[p * n..(p + 1) * n];
@@ -86,6 +94,49 @@ pub fn pack_rows(k: usize, n: usize, x: &[f32], ld: usize, out: &mut Vec<u32>) {
             pair_rows(lo, &x[(2 * p + 1) * ld..(2 * p + 1) * ld + n], dst);
         } else {
             pair_row_with_zero(lo, dst);
+        }
+    }
+}
+
+/// Packs Xᵀ as B for a row-major X (`rows × k`, contiguous): element `(p, r)` of the
+/// `[pairs(k)][rows]` result pairs X[r][2p] and X[r][2p + 1], so it equals [`pack_rows`] of
+/// the transposed copy of X, element for element, without making that copy.
+pub fn pack_transposed(rows: usize, k: usize, x: &[f32], out: &mut Vec<u32>) {
+    const BS: usize = 16;
+    let kp = pairs(k);
+    out.resize(kp * rows, 0);
+    let mut block = [0u32; 64 * BS];
+    if kp > 64 {
+        // Wider rows than the block holds: element by element.
+        for r in 0..rows {
+            for p in 0..kp {
+                let hi = if 2 * p + 1 < k { x[r * k + 2 * p + 1] } else { 0.0 };
+                out[p * rows + r] = if 2 * p + 1 < k {
+                    pair(x[r * k + 2 * p], hi)
+                } else {
+                    to_bf16(x[r * k + 2 * p]) as u32
+                };
+            }
+        }
+        return;
+    }
+    // 16 rows at a time: pair each row (contiguous, vectorised), then write the block out a
+    // pair-row at a time (16 consecutive u32 per pair index).
+    for r0 in (0..rows).step_by(BS) {
+        let nr = (rows - r0).min(BS);
+        for i in 0..nr {
+            let src = &x[(r0 + i) * k..(r0 + i + 1) * k];
+            let dst = &mut block[i * kp..(i + 1) * kp];
+            pair_consecutive(src, dst);
+            if k % 2 == 1 {
+                dst[kp - 1] = to_bf16(src[k - 1]) as u32;
+            }
+        }
+        for p in 0..kp {
+            let row = &mut out[p * rows + r0..p * rows + r0 + nr];
+            for (i, o) in row.iter_mut().enumerate() {
+                *o = block[i * kp + p];
+            }
         }
     }
 }

@@ -223,6 +223,22 @@ impl Net {
         }
     }
 
+    /// [`Net::prepare`] for a training step: with mixed precision it skips the f32 copies
+    /// only an f32 forward pass reads ([`LstmPrepared::prepare_for_mixed_step`]); call
+    /// [`Net::prepare`] before evaluating on them.
+    pub fn prepare_for_step(&self, params: &[f32], prep: &mut Prepared) {
+        match &self.lstm {
+            Some((d, idx)) if self.mixed() => {
+                prep.lstm.prepare_for_mixed_step(d, params, idx);
+                prep.lin_t.resize(self.mlp.len(), Vec::new());
+                for (l, t) in self.mlp.iter().zip(prep.lin_t.iter_mut()) {
+                    lstm::transpose(&params[l.w..l.w + l.n_out * l.n_in], l.n_out, l.n_in, t);
+                }
+            }
+            _ => self.prepare(params, prep),
+        }
+    }
+
     /// Model outputs (normalised units) for `b` windows `x` (`[b][L][J]`, normalised) into
     /// `out` (`[b][J]`).
     pub fn forward(&self, params: &[f32], prep: &Prepared, x: &[f32], b: usize, ws: &mut Workspace, out: &mut [f32]) {
