@@ -110,11 +110,11 @@ pub fn pack_transposed(rows: usize, k: usize, x: &[f32], out: &mut Vec<u32>) {
         // Wider rows than the block holds: element by element.
         for r in 0..rows {
             for p in 0..kp {
-                let hi = if 2 * p + 1 < k { x[r * k + 2 * p + 1] } else { 0.0 };
+                let lo = x[r * k + 2 * p];
                 out[p * rows + r] = if 2 * p + 1 < k {
-                    pair(x[r * k + 2 * p], hi)
+                    pair(lo, x[r * k + 2 * p + 1])
                 } else {
-                    to_bf16(x[r * k + 2 * p]) as u32
+                    to_bf16(lo) as u32
                 };
             }
         }
@@ -298,6 +298,27 @@ mod tests {
         assert!(from_bf16(to_bf16(f32::NAN)).is_nan());
         let x = 0.123_456_79f32;
         assert!((from_bf16(to_bf16(x)) - x).abs() <= x * 2f32.powi(-9));
+    }
+
+    /// Packing Xᵀ straight from X gives the elements of [`pack_rows`] on a transposed copy,
+    /// on the block path (k ≤ 128), the element-wise path (k > 128), odd k and a partial
+    /// block of rows.
+    #[test]
+    fn pack_transposed_equals_packing_a_transposed_copy() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        for &(rows, k) in &[(512, 128), (37, 9), (16, 1), (5, 131), (40, 200)] {
+            let x: Vec<f32> = (0..rows * k).map(|_| rng.random_range(-3.0..3.0)).collect();
+            let mut xt = vec![0.0f32; rows * k];
+            for r in 0..rows {
+                for c in 0..k {
+                    xt[c * rows + r] = x[r * k + c];
+                }
+            }
+            let (mut want, mut got) = (Vec::new(), Vec::new());
+            pack_rows(k, rows, &xt, rows, &mut want);
+            pack_transposed(rows, k, &x, &mut got);
+            assert_eq!(got, want, "{rows} rows × k = {k}");
+        }
     }
 
     /// Both paths, with A packed row-major and k-major, against the f64 product of the
