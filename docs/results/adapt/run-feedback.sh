@@ -2,8 +2,9 @@
 # Vision feedback through cable slack, on the unseen trajectories: the slip and the creep
 # scenarios × feedback alone / feedback + adaptation × with the slow correction b (the shipped
 # configs/controller-feedback.toml) and without it (the same with bias_gain = 0), the accurate
-# pair, newton, camera at 10 fps, 3 repeats each.
-# Usage: docs/results/adapt/run-feedback.sh [bowden binary]   (from the repository root; ~15 min on 2 cores)
+# pair, newton, camera at 10 fps, 3 repeats each. Each session runs 5 min past the moment its slack
+# stops growing (slip 120 s, creep 720 s) and 3 min more, as run.sh's do.
+# Usage: docs/results/adapt/run-feedback.sh [bowden binary]   (from the repository root; ~25 min on 2 cores)
 set -euo pipefail
 BOWDEN=${1:-target/release/bowden}
 OUT=docs/results/adapt/feedback
@@ -18,7 +19,7 @@ run() { # name plant minutes controller-config adapt(yes|no)
         || { cat "$OUT/$1.log"; exit 1; }
     echo "$1 done"
 }
-for sc in slip:configs/plant-slack-slip.toml:7 creep:configs/plant-slack-creep.toml:15; do
+for sc in slip:configs/plant-slack-slip.toml:10 creep:configs/plant-slack-creep.toml:20; do
     IFS=: read -r s plant min <<< "$sc"
     run "$s-fb" "$plant" "$min" configs/controller-feedback.toml no
     run "$s-fb-adapt" "$plant" "$min" configs/controller-feedback.toml yes
