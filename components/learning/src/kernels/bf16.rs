@@ -19,15 +19,20 @@
 
 use super::simd::simd_fn;
 
-/// f32 → bfloat16 bits, round to nearest, ties to even; a NaN stays a NaN. Branch-free, so
-/// the packing loops vectorise.
+/// f32 → bfloat16 bits, round to nearest, ties to even; a NaN stays a NaN (quieted); an f32
+/// denormal becomes a zero of its sign. That is `vcvtneps2bf16`'s conversion exactly, so the
+/// packing gives the same bits with the instruction ([`has_avx512_bf16`]) and without.
+/// Branch-free, so the packing loops vectorise.
 #[inline(always)]
 pub fn to_bf16(x: f32) -> u16 {
     let bits = x.to_bits();
     let rounded = bits.wrapping_add(0x7fff + ((bits >> 16) & 1)) >> 16;
     let quiet_nan = (bits >> 16) | 0x40;
+    let signed_zero = (bits >> 16) & 0x8000;
     (if (bits & 0x7fff_ffff) > 0x7f80_0000 {
         quiet_nan
+    } else if bits & 0x7f80_0000 == 0 {
+        signed_zero
     } else {
         rounded
     }) as u16
@@ -50,7 +55,7 @@ pub fn pairs(k: usize) -> usize {
 }
 
 simd_fn! {
-    fn pair_rows(lo: &[f32], hi: &[f32], out: &mut [u32]) {
+    fn pair_rows_sw(lo: &[f32], hi: &[f32], out: &mut [u32]) {
         for ((o, l), h) in out.iter_mut().zip(lo).zip(hi) {
             *o = pair(*l, *h);
         }
@@ -66,10 +71,86 @@ simd_fn! {
 }
 
 simd_fn! {
-    fn pair_consecutive(src: &[f32], out: &mut [u32]) {
+    fn pair_consecutive_sw(src: &[f32], out: &mut [u32]) {
         for (o, v) in out.iter_mut().zip(src.chunks_exact(2)) {
             *o = pair(v[0], v[1]);
         }
+    }
+}
+
+/// `out[j]` = pair(lo[j], hi[j]) over the shortest of the three.
+fn pair_rows(lo: &[f32], hi: &[f32], out: &mut [u32]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if has_avx512_bf16() {
+            let n = out.len().min(lo.len()).min(hi.len());
+            // SAFETY: the CPU has AVX-512F and AVX-512 BF16 (checked); n bounds all three.
+            let done = unsafe { convert::pair_rows(&lo[..n], &hi[..n], &mut out[..n]) };
+            pair_rows_sw(&lo[done..n], &hi[done..n], &mut out[done..n]);
+            return;
+        }
+    }
+    pair_rows_sw(lo, hi, out);
+}
+
+/// `out[q]` = pair(src[2q], src[2q + 1]) over the shorter of `out` and `src`'s pairs.
+fn pair_consecutive(src: &[f32], out: &mut [u32]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if has_avx512_bf16() {
+            let n = out.len().min(src.len() / 2);
+            // SAFETY: the CPU has AVX-512F and AVX-512 BF16 (checked); n bounds both.
+            let done = unsafe { convert::pair_consecutive(&src[..2 * n], &mut out[..n]) };
+            pair_consecutive_sw(&src[2 * done..2 * n], &mut out[done..n]);
+            return;
+        }
+    }
+    pair_consecutive_sw(src, out);
+}
+
+/// The packing's conversions with `vcvtneps2bf16` (the same rounding as [`to_bf16`]): a
+/// third of the integer work of the rounding written out, which the packing spent once per
+/// element per step.
+#[cfg(target_arch = "x86_64")]
+mod convert {
+    use std::arch::x86_64::*;
+
+    /// Whole blocks of 16 pairs; returns how many pairs were written.
+    #[target_feature(enable = "avx512f,avx512bf16")]
+    pub unsafe fn pair_rows(lo: &[f32], hi: &[f32], out: &mut [u32]) -> usize {
+        let n = out.len() / 16 * 16;
+        for q in (0..n).step_by(16) {
+            // SAFETY: q + 16 ≤ n ≤ every slice's length.
+            unsafe {
+                let l: __m256i = std::mem::transmute(_mm512_cvtneps_pbh(_mm512_loadu_ps(lo.as_ptr().add(q))));
+                let h: __m256i = std::mem::transmute(_mm512_cvtneps_pbh(_mm512_loadu_ps(hi.as_ptr().add(q))));
+                let v = _mm512_or_si512(
+                    _mm512_cvtepu16_epi32(l),
+                    _mm512_slli_epi32::<16>(_mm512_cvtepu16_epi32(h)),
+                );
+                _mm512_storeu_si512(out.as_mut_ptr().add(q) as *mut __m512i, v);
+            }
+        }
+        n
+    }
+
+    /// Whole blocks of 16 pairs (32 values); returns how many pairs were written. A pair of
+    /// consecutive values is their two bf16 in memory order, so the conversion is stored as it
+    /// comes.
+    #[target_feature(enable = "avx512f,avx512bf16")]
+    pub unsafe fn pair_consecutive(src: &[f32], out: &mut [u32]) -> usize {
+        let n = out.len() / 16 * 16;
+        for q in (0..n).step_by(16) {
+            // SAFETY: 2q + 32 ≤ 2n ≤ src.len() and q + 16 ≤ out.len().
+            unsafe {
+                let a = _mm512_loadu_ps(src.as_ptr().add(2 * q));
+                let b = _mm512_loadu_ps(src.as_ptr().add(2 * q + 16));
+                // Words 0..16 from the second operand, 16..32 from the first.
+                let v: __m512i = std::mem::transmute(_mm512_cvtne2ps_pbh(b, a));
+                _mm512_storeu_si512(out.as_mut_ptr().add(q) as *mut __m512i, v);
+            }
+        }
+        n
     }
 }
 
@@ -86,10 +167,18 @@ pub fn pack_rows(k: usize, n: usize, x: &[f32], ld: usize, out: &mut Vec<u32>) {
 /// matrix's packing would put it, gives the same elements when every block but the last
 /// has an even number of rows.
 pub fn pack_rows_into(k: usize, n: usize, x: &[f32], ld: usize, out: &mut [u32]) {
+    pack_rows_into_ld(k, n, x, ld, out, n);
+}
+
+/// [`pack_rows_into`] with pair-row `p` at `out[p · ldo ..]` (`ldo` ≥ `n`): a k-major A
+/// operand whose pair rows are a power of two apart (2 KiB for 4H = 512 gates) puts every
+/// pair row's line in the same few L1 sets, and a tile's walk down k evicts its own lines.
+pub fn pack_rows_into_ld(k: usize, n: usize, x: &[f32], ld: usize, out: &mut [u32], ldo: usize) {
+    assert!(ldo >= n, "pack_rows_into_ld: ldo {ldo} < n {n}");
     let kp = pairs(k);
     for p in 0..kp {
         let lo = &x[2 * p * ld..2 * p * ld + n];
-        let dst = &mut out[p * n..(p + 1) * n];
+        let dst = &mut out[p * ldo..p * ldo + n];
         if 2 * p + 1 < k {
             pair_rows(lo, &x[(2 * p + 1) * ld..(2 * p + 1) * ld + n], dst);
         } else {
@@ -298,6 +387,94 @@ mod tests {
         assert!(from_bf16(to_bf16(f32::NAN)).is_nan());
         let x = 0.123_456_79f32;
         assert!((from_bf16(to_bf16(x)) - x).abs() <= x * 2f32.powi(-9));
+    }
+
+    /// The instruction's conversion and the written-out one agree bit for bit, on random
+    /// values and on ties, NaNs, infinities, zeros and denormals (which become signed zeros).
+    #[test]
+    fn packing_converts_like_to_bf16_on_every_path() {
+        assert_eq!(to_bf16(f32::from_bits(0x0000_0001)), 0);
+        assert_eq!(to_bf16(-f32::from_bits(0x007f_ffff)), 0x8000);
+        assert_eq!(to_bf16(f32::MIN_POSITIVE), 0x0080);
+        let mut rng = ChaCha8Rng::seed_from_u64(8);
+        let special = [
+            0.0f32,
+            -0.0,
+            1.0 + 1.0 / 256.0,
+            1.0 + 3.0 / 256.0,
+            f32::NAN,
+            -f32::NAN,
+            f32::from_bits(0x7f80_0001),
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::MAX,
+            f32::from_bits(0x0000_0001),
+            f32::from_bits(0x807f_ffff),
+            f32::MIN_POSITIVE,
+        ];
+        let x: Vec<f32> = (0..203)
+            .map(|i| {
+                if i % 7 == 0 {
+                    special[(i / 7) % special.len()]
+                } else {
+                    f32::from_bits(rng.random::<u32>())
+                }
+            })
+            .collect();
+        let want_pairs: Vec<u32> = x.chunks_exact(2).map(|v| pair(v[0], v[1])).collect();
+        let mut got = vec![0u32; want_pairs.len()];
+        pair_consecutive(&x, &mut got);
+        assert_eq!(got, want_pairs);
+        let (lo, hi) = x.split_at(101);
+        let want_rows: Vec<u32> = lo.iter().zip(hi).map(|(l, h)| pair(*l, *h)).collect();
+        let mut got = vec![0u32; 101];
+        pair_rows(lo, &hi[..101], &mut got);
+        assert_eq!(got, want_rows);
+        eprintln!("AVX-512 BF16 conversion in use: {}", has_avx512_bf16());
+    }
+
+    /// A padded leading dimension moves each pair row and nothing else: the elements are
+    /// [`pack_rows`]'s, the padding is left as it was, and the product reads the same sums.
+    #[test]
+    fn padded_pair_rows_hold_pack_rows_elements_and_give_the_same_product() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        for &(k, n, pad) in &[(32usize, 512usize, 32usize), (9, 40, 16), (1, 7, 1)] {
+            let x: Vec<f32> = (0..k * n).map(|_| rng.random_range(-3.0..3.0)).collect();
+            let mut want = Vec::new();
+            pack_rows(k, n, &x, n, &mut want);
+            let ldo = n + pad;
+            let mut got = vec![0xdead_beefu32; pairs(k) * ldo];
+            pack_rows_into_ld(k, n, &x, n, &mut got, ldo);
+            for p in 0..pairs(k) {
+                assert_eq!(
+                    &got[p * ldo..p * ldo + n],
+                    &want[p * n..(p + 1) * n],
+                    "k {k} n {n} pair {p}"
+                );
+                assert!(got[p * ldo + n..(p + 1) * ldo].iter().all(|&v| v == 0xdead_beef));
+            }
+            // As a k-major A (m = n rows of C) against a B of 24 columns.
+            let bm: Vec<f32> = (0..k * 24).map(|_| rng.random_range(-3.0..3.0)).collect();
+            let mut bp = Vec::new();
+            pack_rows(k, 24, &bm, 24, &mut bp);
+            let (mut c0, mut c1) = (vec![0.0f32; n * 24], vec![0.0f32; n * 24]);
+            let a0 = PackedA {
+                data: &want,
+                rs: 1,
+                ps: n,
+            };
+            let a1 = PackedA {
+                data: &got,
+                rs: 1,
+                ps: ldo,
+            };
+            gemm_bf16_acc(n, 24, pairs(k), a0, &bp, &mut c0, 24);
+            gemm_bf16_acc(n, 24, pairs(k), a1, &bp, &mut c1, 24);
+            assert_eq!(
+                c0.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                c1.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+            );
+        }
     }
 
     /// Packing Xᵀ straight from X gives the elements of [`pack_rows`] on a transposed copy,

@@ -48,6 +48,42 @@ pub fn gemm_acc(m: usize, n: usize, k: usize, a: StridedA<'_>, b: &[f32], ldb: u
     gemm_portable(m, n, k, a, b, ldb, c, ldc);
 }
 
+/// C = bias (each row) + A·B, the bits of copying `bias` into every row of C and then
+/// [`gemm_acc`], in one pass over C: the LSTM's gates start as b_ih + b_hh + x_t W_ihᵀ every
+/// step (K = J = 5), and the copy and the product's read-add-write of C were two passes over
+/// a step's gates for five multiply-adds an element.
+#[allow(clippy::too_many_arguments)]
+pub fn gemm_set_bias(
+    m: usize,
+    n: usize,
+    k: usize,
+    a: StridedA<'_>,
+    b: &[f32],
+    ldb: usize,
+    bias: &[f32],
+    c: &mut [f32],
+    ldc: usize,
+) {
+    if m == 0 || n == 0 {
+        return;
+    }
+    assert!(bias.len() >= n, "gemm_set_bias: bias {} < n {n}", bias.len());
+    #[cfg(target_arch = "x86_64")]
+    {
+        if k > 0 && k <= avx512::KC && super::simd::has_avx512() {
+            check_bounds(m, n, k, a, b, ldb, c, ldc);
+            // SAFETY: the CPU has AVX-512F (checked); every access is within the slices
+            // (checked above for the extreme indices of each operand, and bias ≥ n).
+            unsafe { avx512::gemm_set_bias(m, n, k, a, b, ldb, bias, c, ldc) };
+            return;
+        }
+    }
+    for i in 0..m {
+        c[i * ldc..i * ldc + n].copy_from_slice(&bias[..n]);
+    }
+    gemm_acc(m, n, k, a, b, ldb, c, ldc);
+}
+
 #[allow(clippy::too_many_arguments)]
 fn check_bounds(m: usize, n: usize, k: usize, a: StridedA<'_>, b: &[f32], ldb: usize, c: &[f32], ldc: usize) {
     let a_last = (m - 1) * a.rs + (k - 1) * a.cs;
@@ -121,7 +157,7 @@ pub(super) mod avx512 {
     /// Rows of C per register tile; 32 columns (two vectors) per tile, so 16 accumulators.
     pub(in crate::kernels) const MR: usize = 8;
     pub(in crate::kernels) const NR: usize = 32;
-    const KC: usize = 256;
+    pub(super) const KC: usize = 256;
 
     /// The load/store masks of a tile's two vectors when `nr` (≤ 32) of its columns are live.
     #[inline(always)]
@@ -254,20 +290,77 @@ pub(super) mod avx512 {
         });
     }
 
+    /// [`super::gemm_set_bias`] for k ≤ [`KC`]: [`gemm`]'s tiles in one panel, each ending
+    /// with C = bias + acc where [`gemm`] ends with C = C + acc on C holding the bias (the
+    /// same operands of the same addition).
+    #[target_feature(enable = "avx512f")]
+    #[allow(clippy::too_many_arguments)]
+    pub unsafe fn gemm_set_bias(
+        m: usize,
+        n: usize,
+        k: usize,
+        a: StridedA<'_>,
+        b: &[f32],
+        ldb: usize,
+        bias: &[f32],
+        c: &mut [f32],
+        ldc: usize,
+    ) {
+        let (ap, bp, biasp, cp) = (a.data.as_ptr(), b.as_ptr(), bias.as_ptr(), c.as_mut_ptr());
+        let (a_rs, a_cs) = (a.rs, a.cs);
+        for_each_tile(m, n, |i0, j0, mr, m0, m1| {
+            // SAFETY: the tile lies inside the operands the caller checked.
+            unsafe {
+                let (a_tile, b_tile, c_tile) = (ap.add(i0 * a_rs), bp.add(j0), cp.add(i0 * ldc + j0));
+                let bias_tile = biasp.add(j0);
+                by_rows!(
+                    mr,
+                    tile_set_bias(k, a_tile, a_rs, a_cs, b_tile, ldb, bias_tile, c_tile, ldc, m0, m1)
+                );
+            }
+        });
+    }
+
     #[inline(always)]
     #[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
-    unsafe fn tile<const R: usize>(
+    unsafe fn tile_set_bias<const R: usize>(
         k: usize,
         a: *const f32,
         a_rs: usize,
         a_cs: usize,
         b: *const f32,
         ldb: usize,
+        bias: *const f32,
         c: *mut f32,
         ldc: usize,
         m0: __mmask16,
         m1: __mmask16,
     ) {
+        let (acc0, acc1) = accumulate::<R>(k, a, a_rs, a_cs, b, ldb, m0, m1);
+        let bias0 = _mm512_maskz_loadu_ps(m0, bias);
+        let bias1 = _mm512_maskz_loadu_ps(m1, bias.add(16));
+        for r in 0..R {
+            let crow = c.add(r * ldc);
+            _mm512_mask_storeu_ps(crow, m0, _mm512_add_ps(bias0, acc0[r]));
+            if m1 != 0 {
+                _mm512_mask_storeu_ps(crow.add(16), m1, _mm512_add_ps(bias1, acc1[r]));
+            }
+        }
+    }
+
+    /// A tile's sums: `acc[r]` = Σ_k A[r][k] · B[k][..] by FMA in k order from zero.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
+    unsafe fn accumulate<const R: usize>(
+        k: usize,
+        a: *const f32,
+        a_rs: usize,
+        a_cs: usize,
+        b: *const f32,
+        ldb: usize,
+        m0: __mmask16,
+        m1: __mmask16,
+    ) -> ([__m512; R], [__m512; R]) {
         let mut acc0 = [_mm512_setzero_ps(); R];
         let mut acc1 = [_mm512_setzero_ps(); R];
         if m1 != 0 {
@@ -292,6 +385,24 @@ pub(super) mod avx512 {
                 }
             }
         }
+        (acc0, acc1)
+    }
+
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
+    unsafe fn tile<const R: usize>(
+        k: usize,
+        a: *const f32,
+        a_rs: usize,
+        a_cs: usize,
+        b: *const f32,
+        ldb: usize,
+        c: *mut f32,
+        ldc: usize,
+        m0: __mmask16,
+        m1: __mmask16,
+    ) {
+        let (acc0, acc1) = accumulate::<R>(k, a, a_rs, a_cs, b, ldb, m0, m1);
         add_to_c(c, ldc, &acc0, &acc1, m0, m1);
     }
 }
@@ -311,6 +422,39 @@ mod tests {
                     s += a.data[i * a.rs + kk * a.cs] as f64 * b[kk * ldb + j] as f64;
                 }
                 c[i * ldc + j] += s as f32;
+            }
+        }
+    }
+
+    /// gemm_set_bias gives the bits of copying the bias into C and then gemm_acc: on this
+    /// CPU's path (its own tiles on AVX-512), past one K panel, and with k = 0. (Without
+    /// AVX-512 it is the copy and gemm_acc themselves.)
+    #[test]
+    fn set_bias_is_copy_then_gemm_bit_for_bit() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        {
+            let portable = !super::super::simd::has_avx512();
+            for &(m, n, k) in &[(16, 512, 5), (9, 33, 3), (1, 7, 1), (5, 40, 300), (3, 16, 0)] {
+                let a: Vec<f32> = (0..m * k.max(1)).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let av = StridedA {
+                    data: &a,
+                    rs: k.max(1),
+                    cs: 1,
+                };
+                let ldb = n + 2;
+                let b: Vec<f32> = (0..k.max(1) * ldb).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let bias: Vec<f32> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let ldc = n + 1;
+                let c0: Vec<f32> = (0..m * ldc).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let mut want = c0.clone();
+                for i in 0..m {
+                    want[i * ldc..i * ldc + n].copy_from_slice(&bias);
+                }
+                gemm_acc(m, n, k, av, &b, ldb, &mut want, ldc);
+                let mut got = c0.clone();
+                gemm_set_bias(m, n, k, av, &b, ldb, &bias, &mut got, ldc);
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&got), bits(&want), "{m}×{n}×{k} portable {portable}");
             }
         }
     }
