@@ -90,7 +90,8 @@ if [ "${SESSIONS:-0}" = 1 ]; then
             echo "oracle.sh: SESSIONS=1 needs $d/controller-seed$s.toml: include 'default' in PLANTS" >&2; exit 2; }
     done
     for s in ${SEEDS:-0}; do
-        for sc in slip:configs/plant-slack-slip.toml:7 creep:configs/plant-slack-creep.toml:15; do
+        # As long as run.sh's sessions: 5 min past the end of the slack's growth, 3 min more.
+        for sc in slip:configs/plant-slack-slip.toml:10 creep:configs/plant-slack-creep.toml:20; do
             IFS=: read -r name plant min <<< "$sc"
             for a in ff adapt; do
                 r=$d/session-$name-seed$s-$a
