@@ -136,6 +136,53 @@ fn train_writes_model_report_and_plot() {
     assert_eq!(get("direction"), Some("forward"));
     assert_eq!(get("seq_len"), Some("16"));
     assert_eq!(get("tcn_block"), Some("relu-linear"));
+    // `--decimation auto` (the default): the synthetic data walk eq. (16)'s one step, so the
+    // histories are decimated, and the report says why.
+    assert!(stdout.contains("decimation auto → 4"), "{stdout}");
+    assert_eq!(report["config"]["decimation"], 4);
+    assert_eq!(report["decimation_auto"]["decimation"], 4);
+    assert_eq!(report["decimation_auto"]["larger_fraction"], 0.0);
+    // A number is used as given, and nothing is chosen.
+    let literal = tmp.path().join("models/tcn_forward_d1.onnx");
+    let stdout = ok(&bowden(&[
+        "train",
+        "--arch",
+        "tcn",
+        "--direction",
+        "forward",
+        "--seq-len",
+        "16",
+        "--epochs",
+        "1",
+        "--decimation",
+        "1",
+        "--data",
+        &data,
+        "--out",
+        &literal.display().to_string(),
+    ]));
+    assert!(!stdout.contains("decimation auto"), "{stdout}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(tmp.path().join("models/tcn_forward_d1.report.json")).unwrap())
+            .unwrap();
+    assert!(report["config"].get("decimation").is_none() && report.get("decimation_auto").is_none());
+    fails_with(
+        &bowden(&[
+            "train",
+            "--arch",
+            "tcn",
+            "--direction",
+            "forward",
+            "--decimation",
+            "0",
+            "--data",
+            &data,
+            "--out",
+            &model_s,
+            "--force",
+        ]),
+        &["--decimation", "auto"],
+    );
 
     fails_with(
         &bowden(&[

@@ -12,6 +12,7 @@ use bowden_compensator::{Compensator, ControllerConfig, Mode, SafetyConfig, Step
 use bowden_kinematics::{JointsDeg, Robot, N_JOINTS};
 use bowden_learning::arch::{Arch, Direction};
 use bowden_learning::dataset::Dataset;
+use bowden_learning::spacing::{auto_decimation, AUTO_DECIMATION};
 use bowden_learning::train::{train, TrainConfig};
 use bowden_learning::windows::{PhySource, SplitConfig, WindowSet};
 use bowden_plant::{Plant, PlantConfig};
@@ -44,16 +45,19 @@ fn record(plant: &mut Plant, commands: &[JointsDeg]) -> Dataset {
     ds
 }
 
-/// A poor model pair: eq. (16) only, 30 epochs, the shipped architecture (TCN, L = 80).
-fn poor_pair(ds: &Dataset, dir: &Path, tag: &str) -> (PathBuf, PathBuf) {
+/// A poor model pair: eq. (16) only, 30 epochs, the shipped architecture (TCN, L = 80), with
+/// histories decimated by up to `decimation` samples per model step.
+fn poor_pair(ds: &Dataset, dir: &Path, tag: &str, decimation: usize) -> (PathBuf, PathBuf) {
     let mut out = Vec::new();
     for d in [Direction::Forward, Direction::Inverse] {
-        let w = WindowSet::build(ds, d, 80, SplitConfig::default(), PhySource::Vision).unwrap();
+        let mut w = WindowSet::build(ds, d, 80, SplitConfig::default(), PhySource::Vision).unwrap();
+        w.set_decimation(decimation).unwrap();
         let mut cfg = TrainConfig::paper(Arch::Tcn, d, 80, 30, 7);
         cfg.threads = 2;
+        cfg.decimation = decimation;
         let m = train(&w, &cfg, None).unwrap().model;
         assert!(m.support.is_some(), "train records the data's support");
-        let p = dir.join(format!("{tag}_{d}.onnx"));
+        let p = dir.join(format!("{tag}_d{decimation}_{d}.onnx"));
         m.save(&p).unwrap();
         out.push(p);
     }
@@ -144,7 +148,16 @@ struct FamilyResult {
     runs: Vec<(Mode, usize, Tracked)>,
 }
 
-fn run_family(plant_file: &str, tmp: &Path, variants: &[SafetyConfig]) -> FamilyResult {
+/// Which histories a variant's models are trained on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Histories {
+    /// Consecutive samples only: the paper's training, taken literally.
+    Consecutive,
+    /// What `bowden train` does by default (`--decimation auto`): decimated, on eq. (16) data.
+    Auto,
+}
+
+fn run_family(plant_file: &str, tmp: &Path, variants: &[(Histories, SafetyConfig)]) -> FamilyResult {
     let robot = Robot::paper_default();
     let cfg = PlantConfig::load(repo(plant_file)).unwrap();
     let mut plant = Plant::new(&robot, &cfg, cfg.variation.unit_for_run(5));
@@ -155,7 +168,15 @@ fn run_family(plant_file: &str, tmp: &Path, variants: &[SafetyConfig]) -> Family
         .unwrap()
         .to_string_lossy()
         .into_owned();
-    let (fwd, inv) = poor_pair(&ds, tmp, &tag);
+    let rows = WindowSet::build(&ds, Direction::Forward, 1, SplitConfig::default(), PhySource::Vision)
+        .unwrap()
+        .train;
+    let auto = auto_decimation(&ds, &rows).unwrap();
+    assert_eq!(
+        auto.decimation, AUTO_DECIMATION,
+        "eq. (16) data are single-step: {auto}"
+    );
+    let mut pairs: Vec<(Histories, (PathBuf, PathBuf))> = Vec::new();
     // Unseen targets: another seed's eq. (16) path (one model step apart).
     let targets = bowden_trajectory::dataset_commands(&robot, 12, 99);
     let uncalibrated = track(&mut plant, None, &targets);
@@ -165,8 +186,16 @@ fn run_family(plant_file: &str, tmp: &Path, variants: &[SafetyConfig]) -> Family
         runs: Vec::new(),
     };
     for mode in [Mode::Paper, Mode::Newton] {
-        for (v, safety) in variants.iter().enumerate() {
-            let mut comp = Compensator::from_config(&controller(&fwd, &inv, mode, safety.clone()), &robot).unwrap();
+        for (v, (histories, safety)) in variants.iter().enumerate() {
+            if !pairs.iter().any(|(h, _)| h == histories) {
+                let decimation = match histories {
+                    Histories::Consecutive => 1,
+                    Histories::Auto => auto.decimation,
+                };
+                pairs.push((*histories, poor_pair(&ds, tmp, &tag, decimation)));
+            }
+            let (fwd, inv) = &pairs.iter().find(|(h, _)| h == histories).unwrap().1;
+            let mut comp = Compensator::from_config(&controller(fwd, inv, mode, safety.clone()), &robot).unwrap();
             let t = track(&mut plant, Some(&mut comp), &targets);
             r.runs.push((mode, v, t));
         }
@@ -198,7 +227,12 @@ fn poor_models_never_track_worse_than_uncalibrated_on_any_family() {
         let r = run_family(
             plant_file,
             tmp.path(),
-            &[shipped.clone(), SafetyConfig::default(), tip.clone()],
+            &[
+                (Histories::Consecutive, shipped.clone()),
+                (Histories::Consecutive, SafetyConfig::default()),
+                (Histories::Consecutive, tip.clone()),
+                (Histories::Auto, shipped.clone()),
+            ],
         );
         let u = r.uncalibrated;
         eprintln!(
@@ -206,7 +240,12 @@ fn poor_models_never_track_worse_than_uncalibrated_on_any_family() {
             r.plant, u.joint_deg, u.pos_mm, u.rot_deg
         );
         for (mode, v, t) in &r.runs {
-            let what = ["shipped [safety]", "no safety", "shipped + tip rating"][*v];
+            let what = [
+                "shipped [safety]",
+                "no safety",
+                "shipped + tip rating",
+                "train's default (decimated) models, shipped [safety]",
+            ][*v];
             eprintln!(
                 "  {mode} {what}: {:.2}°, {:.2} mm / {:.2}° (largest correction {:.1}°)",
                 t.joint_deg, t.pos_mm, t.rot_deg, t.gap_deg
@@ -220,7 +259,7 @@ fn poor_models_never_track_worse_than_uncalibrated_on_any_family() {
                     .into_iter()
                     .filter(|w| w.starts_with("joint"))
                     .collect(),
-                2 => t.worse_than(&u),
+                2 | 3 => t.worse_than(&u),
                 _ => Vec::new(),
             };
             for w in checked {
@@ -258,6 +297,7 @@ fn safety_variants_on_poor_models() {
     });
     variants.push(SafetyConfig::default());
     for plant_file in FAMILIES {
+        let variants: Vec<_> = variants.iter().map(|s| (Histories::Consecutive, s.clone())).collect();
         let r = run_family(plant_file, tmp.path(), &variants);
         let u = r.uncalibrated;
         println!(
@@ -265,7 +305,7 @@ fn safety_variants_on_poor_models() {
             r.plant, u.joint_deg, u.pos_mm, u.rot_deg
         );
         for (mode, v, t) in &r.runs {
-            let s = &variants[*v];
+            let s = &variants[*v].1;
             println!(
                 "  {mode:7} support {} step×{} guard×{} never_worse {} tip {}: {:.2}°, {:.2} mm / {:.2}° ({:.1}°)",
                 s.support,

@@ -5,6 +5,7 @@ use anyhow::{bail, Context, Result};
 use bowden_learning::bench::{bench_train, BenchOptions};
 use bowden_learning::dataset::{import_csv, import_npy, AngleUnit, ImportOptions};
 use bowden_learning::report::train_to_files;
+use bowden_learning::spacing::DecimationRule;
 use bowden_learning::sweep::{execute_runs, merge_sweep, plan_sweep, run_sweep, Selection, SweepConfig, SweepPlan};
 use bowden_learning::{Arch, Backend, Direction, PhySource, Precision, SplitConfig, TcnBlock, TrainConfig};
 use clap::{Args, Subcommand};
@@ -123,9 +124,10 @@ pub struct TrainArgs {
     /// Train on histories decimated by up to N samples per model step as well (each window's
     /// decimation drawn from 1..=N every epoch; a decimated step never skips a reversal of the
     /// commands): the model learns the larger steps a compensator sends, which eq. (16) data
-    /// never makes. 1 = consecutive samples only (the paper).
-    #[arg(long, default_value_t = 1)]
-    decimation: usize,
+    /// never makes. 1 = consecutive samples only (the paper). auto: 4 when the training
+    /// commands hold no step larger than their grid (eq. (16) data), else 1.
+    #[arg(long, default_value = "auto")]
+    decimation: DecimationRule,
     #[command(flatten)]
     split: SplitArgs,
 }
@@ -335,16 +337,18 @@ pub fn run(c: Command) -> Result<()> {
                 .parse::<Precision>()
                 .map_err(anyhow::Error::msg)
                 .context("--precision")?;
-            cfg.decimation = a.decimation;
             let (split, phy) = a.split.parse()?;
             let data = super::dataset_dir("--data", &a.data)?;
             let (json, svg) = bowden_learning::report::sidecar_paths(&a.out);
             super::refuse_overwrite(&[a.out.clone(), json.clone(), svg.clone()], a.force, "--out")?;
             let pb = epoch_bar();
             pb.set_prefix(format!("{arch} {direction} L={}", a.seq_len));
-            let report = train_to_files(data, &cfg, split, phy, &a.out, Some(&pb))
+            let report = train_to_files(data, &cfg, a.decimation, split, phy, &a.out, Some(&pb))
                 .with_context(|| format!("training on {}", a.data.display()))?;
             pb.finish();
+            if let Some(choice) = &report.decimation_auto {
+                println!("{choice}");
+            }
             println!(
                 "{} {} L={} ({} params): best epoch {}/{}: validation RMSE {:.3}° (identity {:.3}°), per joint {:?}",
                 arch,

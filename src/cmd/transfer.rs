@@ -25,6 +25,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use bowden_evaluation::metrics::reduction_pct;
 use bowden_evaluation::CONTROLLERS;
 use bowden_learning::dataset::fnv1a64_hex;
+use bowden_learning::spacing::DecimationRule;
 use bowden_learning::sweep::{Selection, SHARDING};
 use bowden_learning::{Arch, Precision};
 use clap::{Args, Subcommand};
@@ -165,10 +166,11 @@ pub struct Recipe {
     pub early_stop: Option<usize>,
     /// `train --seq-len`.
     pub seq_len: usize,
-    /// `train --decimation` of every model (default 1: consecutive samples only, and not
-    /// passed, so recipes without the key keep their fingerprints and stamps).
-    #[serde(default = "default_decimation", skip_serializing_if = "is_one")]
-    pub decimation: usize,
+    /// `train --decimation` of every model: `"auto"` (the default, as `train`'s: decimated
+    /// histories on single-step data such as eq. (16)'s, consecutive samples otherwise) or a
+    /// whole number (1 = consecutive samples only, the paper).
+    #[serde(default)]
+    pub decimation: DecimationRule,
     /// Per-architecture `epochs` / `early_stop` replacing the two above for that architecture
     /// (an LSTM epoch costs about 25 TCN epochs, and the LSTM inverse overfits after ~15).
     #[serde(default)]
@@ -232,14 +234,6 @@ struct TrainJob {
 
 fn default_judge_seed() -> u64 {
     1
-}
-
-fn default_decimation() -> usize {
-    1
-}
-
-fn is_one(v: &usize) -> bool {
-    *v == 1
 }
 
 /// `[recipe.closed_loop]`: what the second, compensated collection round records.
@@ -375,9 +369,6 @@ impl TransferConfig {
                  another"
                     .into(),
             );
-        }
-        if r.decimation == 0 {
-            return Err("recipe.decimation: must be at least 1 (1 = consecutive samples only)".into());
         }
         for (arch, o) in &r.per_arch {
             if !r.archs.contains(arch)
@@ -567,9 +558,7 @@ impl Recipe {
         if let Some(seed) = seed {
             args.extend(["--seed".into(), seed.to_string()]);
         }
-        if self.decimation != 1 {
-            args.extend(["--decimation".into(), self.decimation.to_string()]);
-        }
+        args.extend(["--decimation".into(), self.decimation.to_string()]);
         // f32 is not passed, so the steps of a recipe without the key keep their stamps.
         let precision = self.precision(arch);
         if precision != Precision::F32 {
@@ -2051,11 +2040,7 @@ fn markdown(rep: &Report) -> String {
         r.seq_len,
         r.epochs,
         r.early_stop.map(|e| format!(" --early-stop {e}")).unwrap_or_default()
-            + &if r.decimation == 1 {
-                String::new()
-            } else {
-                format!(" --decimation {}", r.decimation)
-            },
+            + &format!(" --decimation {}", r.decimation),
         r.archs.join(", "),
         r.per_arch
             .keys()
@@ -3455,30 +3440,49 @@ heldout_units = [1, 2]
     #[test]
     fn the_recipe_decimation_reaches_every_training_and_is_validated() {
         let (data, model) = (Path::new("/u/data"), Path::new("/u/models/m.onnx"));
-        // Absent: 1, not passed (the steps of recipes without the key keep their stamps).
+        let args = |c: &TransferConfig| -> Vec<String> {
+            c.recipe
+                .training_jobs()
+                .iter()
+                .map(|job| {
+                    c.recipe
+                        .train_args(&job.arch, job.direction, job.seed, 2, data, model)
+                        .join(" ")
+                })
+                .collect()
+        };
+        // Absent: auto, as train's own default, and passed so a stamp says which.
         let c = cfg(OK).unwrap();
-        assert_eq!(c.recipe.decimation, 1);
-        assert!(!c
-            .recipe
-            .train_args("tcn", "forward", None, 2, data, model)
-            .contains(&"--decimation".to_string()));
-        let text = OK.replace("epochs = 3", "epochs = 3\ndecimation = 4\njudge_archs = [\"tcn\"]");
-        let c = cfg(&text).unwrap();
-        for job in c.recipe.training_jobs() {
-            let args = c
-                .recipe
-                .train_args(&job.arch, job.direction, job.seed, 2, data, model)
-                .join(" ");
-            assert!(args.contains("--decimation 4"), "{}: {args}", job.step);
+        assert_eq!(c.recipe.decimation, DecimationRule::Auto);
+        assert!(
+            args(&c).iter().all(|a| a.contains("--decimation auto")),
+            "{:?}",
+            args(&c)
+        );
+        for (key, want) in [
+            ("decimation = 4", "--decimation 4"),
+            ("decimation = \"auto\"", "--decimation auto"),
+        ] {
+            let text = OK.replace("epochs = 3", &format!("epochs = 3\n{key}\njudge_archs = [\"tcn\"]"));
+            let c = cfg(&text).unwrap();
+            let a = args(&c);
+            assert_eq!(a.len(), c.recipe.training_jobs().len());
+            assert!(a.iter().all(|a| a.contains(want)), "{key}: {a:?}");
         }
-        let e = cfg(&OK.replace("epochs = 3", "epochs = 3\ndecimation = 0")).unwrap_err();
-        assert!(e.contains("recipe.decimation"), "{e}");
-        // The shipped paper-protocol recipe is a valid config and decimates by 4.
+        for bad in ["decimation = 0", "decimation = \"four\""] {
+            let e = cfg(&OK.replace("epochs = 3", &format!("epochs = 3\n{bad}"))).unwrap_err();
+            assert!(e.contains("decimation"), "{bad}: {e}");
+        }
+        // The shipped paper-protocol recipe is a valid config and lets train decide (4 on its
+        // eq. (16) data).
         let shipped =
             std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/transfer-paper-protocol.toml"))
                 .unwrap();
         let c = cfg(&shipped).unwrap();
-        assert_eq!((c.recipe.decimation, c.recipe.samples, c.recipe.epochs), (4, 1802, 30));
+        assert_eq!(
+            (c.recipe.decimation, c.recipe.samples, c.recipe.epochs),
+            (DecimationRule::Auto, 1802, 30)
+        );
         assert_eq!(c.recipe.excitation, "paper");
     }
 
@@ -3506,7 +3510,10 @@ heldout_units = [1, 2]
         // With it, only that architecture trains in bf16.
         let c = cfg(&text.replace("early_stop = 8\n", "early_stop = 8\nprecision = \"bf16\"\n")).unwrap();
         let lstm = c.recipe.train_args("lstm", "inverse", None, 2, data, model).join(" ");
-        assert!(lstm.contains("--epochs 30 --early-stop 8 --precision bf16"), "{lstm}");
+        assert!(
+            lstm.contains("--epochs 30 --early-stop 8 ") && lstm.contains(" --precision bf16"),
+            "{lstm}"
+        );
         let tcn = c.recipe.train_args("tcn", "inverse", None, 2, data, model).join(" ");
         assert!(!tcn.contains("--precision"), "{tcn}");
         let e = cfg(&text.replace("early_stop = 8\n", "early_stop = 8\nprecision = \"f16\"\n")).unwrap_err();

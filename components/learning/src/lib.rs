@@ -21,6 +21,7 @@ pub mod kernels;
 pub mod npy;
 pub mod onnx;
 pub mod report;
+pub mod spacing;
 pub mod support;
 pub mod sweep;
 pub mod synthetic;

@@ -8,8 +8,10 @@ use indicatif::ProgressBar;
 use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::arch::Direction;
 use crate::dataset::{Dataset, DatasetError};
 use crate::onnx::{ModelFile, OnnxError, TractModel};
+use crate::spacing::{auto_decimation, DecimationChoice, DecimationRule};
 use crate::train::{train, EpochStats, TrainConfig, TrainError, TrainOutcome};
 use crate::windows::{overall_rmse, PhySource, SplitConfig, WindowError, WindowSet};
 
@@ -44,6 +46,8 @@ pub enum LearnError {
     },
     #[error("{path}: plot: {what}")]
     Plot { path: PathBuf, what: String },
+    #[error("{dir}: --decimation auto needs two consecutive training commands that differ; give a number instead")]
+    NoCommandSteps { dir: PathBuf },
     #[error(
         "{path}: the exported model differs from the trained one by {diff_deg:.3e} deg (tolerance {EXPORT_TOLERANCE_DEG:e})"
     )]
@@ -107,6 +111,10 @@ pub struct TrainReport {
     pub train_seconds: f64,
     pub mean_epoch_seconds: f64,
     pub export: Option<ExportCheck>,
+    /// `--decimation auto`: what it chose (`config.decimation`) and from what. Absent when the
+    /// decimation was given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub decimation_auto: Option<DecimationChoice>,
 }
 
 pub const REPORT_FORMAT: &str = "bowden-train-report/1";
@@ -145,6 +153,33 @@ pub fn make_report(
         mean_epoch_seconds: out.epochs.iter().map(|e| e.seconds).sum::<f64>() / out.epochs.len().max(1) as f64,
         epochs: out.epochs.clone(),
         export: None,
+        decimation_auto: None,
+    }
+}
+
+/// The decimation `rule` gives for the training rows of the dataset in `dir`: the number
+/// itself, or what [`auto_decimation`] decides from the commands (returned as well).
+pub fn resolve_decimation(
+    dir: &Path,
+    rule: DecimationRule,
+    split: SplitConfig,
+    phy: PhySource,
+) -> Result<(usize, Option<DecimationChoice>), LearnError> {
+    match rule {
+        DecimationRule::Fixed(n) => Ok((n, None)),
+        DecimationRule::Auto => {
+            let (ds, _) = Dataset::read_dir(dir)?;
+            let window_error = |source| LearnError::Window {
+                dir: dir.to_path_buf(),
+                source,
+            };
+            let rows = WindowSet::build(&ds, Direction::Forward, 1, split, phy)
+                .map_err(window_error)?
+                .train;
+            let choice =
+                auto_decimation(&ds, &rows).ok_or_else(|| LearnError::NoCommandSteps { dir: dir.to_path_buf() })?;
+            Ok((choice.decimation, Some(choice)))
+        }
     }
 }
 
@@ -226,20 +261,29 @@ pub fn export_and_check(
 }
 
 /// `bowden train`: trains, exports `out_onnx`, checks it with tract, and writes the report
-/// and the loss plot beside it.
+/// and the loss plot beside it. The histories' decimation is the one `decimation` gives for
+/// this dataset ([`resolve_decimation`]), in place of `cfg.decimation`; the report's config
+/// holds the one used, and `decimation_auto` why, when it was chosen.
 pub fn train_to_files(
     data_dir: &Path,
     cfg: &TrainConfig,
+    decimation: DecimationRule,
     split: SplitConfig,
     phy: PhySource,
     out_onnx: &Path,
     progress: Option<&ProgressBar>,
 ) -> Result<TrainReport, LearnError> {
+    let (max_decimation, decimation_auto) = resolve_decimation(data_dir, decimation, split, phy)?;
+    let cfg = &TrainConfig {
+        decimation: max_decimation,
+        ..cfg.clone()
+    };
     let (ws, summary) = load_windows(data_dir, cfg, split, phy)?;
     let t0 = Instant::now();
     let outcome = train(&ws, cfg, progress)?;
     let secs = t0.elapsed().as_secs_f64();
     let mut report = make_report(&ws, summary, cfg, &outcome, secs);
+    report.decimation_auto = decimation_auto;
     report.export = Some(export_and_check(&outcome.model, &ws, out_onnx, 16)?);
     let (json_path, svg_path) = sidecar_paths(out_onnx);
     write_json(&json_path, &report)?;

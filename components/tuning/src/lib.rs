@@ -29,6 +29,7 @@ use bowden_compensator::{
 use bowden_kinematics::Robot;
 use bowden_learning::arch::Direction as LearnDirection;
 use bowden_learning::dataset::Dataset;
+pub use bowden_learning::spacing::command_spacing_deg;
 use bowden_learning::windows::{PhySource, SplitConfig, WindowSet};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -146,51 +147,6 @@ pub struct TuneOutcome {
     pub report: TuneReport,
     pub model_fwd: PathBuf,
     pub model_inv: PathBuf,
-}
-
-/// The models' time step in joint space, from the training commands themselves: the most
-/// frequent Euclidean step between consecutive commands (to 0.01°), the grid the data was laid
-/// on — eq. (16)'s 3·√5° for `collect`, whatever spacing a real robot's log used. Dither and
-/// jumps spread their steps over many values and do not move the mode; where no step value
-/// holds ≥ 5 % of the steps (no grid), the median. Repeats (a held command) are ignored.
-pub fn command_spacing_deg(ds: &Dataset, train: &[usize]) -> Option<f64> {
-    let mut steps: Vec<f64> = train
-        .windows(2)
-        .filter(|w| w[1] == w[0] + 1)
-        .map(|w| {
-            let (a, b) = (ds.cmd(w[0]), ds.cmd(w[1]));
-            a.iter().zip(b).map(|(x, y)| (y - x) * (y - x)).sum::<f64>().sqrt()
-        })
-        .filter(|d| d.is_finite() && *d > 1e-9)
-        .collect();
-    if steps.is_empty() {
-        return None;
-    }
-    steps.sort_by(|a, b| a.total_cmp(b));
-    let n = steps.len();
-    // Runs of equal 0.01° bins over the sorted steps; the longest wins (ties: the smallest step).
-    let bin = |v: f64| (v * 100.0).round() as i64;
-    let (mut best, mut best_len) = (0usize, 0usize);
-    let mut k = 0;
-    while k < n {
-        let mut e = k + 1;
-        while e < n && bin(steps[e]) == bin(steps[k]) {
-            e += 1;
-        }
-        if e - k > best_len {
-            (best, best_len) = (k, e - k);
-        }
-        k = e;
-    }
-    if best_len * 20 >= n {
-        // The mean of the modal bin: exact for a grid (every member equal).
-        return Some(steps[best..best + best_len].iter().sum::<f64>() / best_len as f64);
-    }
-    Some(if n % 2 == 1 {
-        steps[n / 2]
-    } else {
-        0.5 * (steps[n / 2 - 1] + steps[n / 2])
-    })
 }
 
 /// Rolling history of the last `rows` inputs (zero-padded, oldest first), as the models see it.

@@ -5,7 +5,9 @@
 # `bowden bench transfer --units tuning --out out/study-base`, which also gives the "mixed, all"
 # case). Every case is plain bowden commands; the smaller mixed cases are prefixes of the unit's
 # mixed collection (the first N commands, re-imported with `bowden import`), i.e. exactly what a
-# shorter collection would have recorded, since collection is deterministic.
+# shorter collection would have recorded, since collection is deterministic. Consecutive samples
+# only (`--decimation 1`), as when the study was made: train's default is now `auto`, which
+# would decimate the eq. (16) case.
 #
 #   docs/results/data-study/run.sh out/study-base out/data-study
 set -euo pipefail
@@ -22,7 +24,7 @@ case_run() { # unit case datadir
   [ -f "$dir/eval/report.json" ] && return 0
   for d in forward inverse; do
     [ -f "$dir/models/tcn_${d}_L80.onnx" ] || "$B" train --arch tcn --direction $d --seq-len 80 --epochs 150 \
-      --early-stop 40 --threads "$THREADS" --data "$data" --out "$dir/models/tcn_${d}_L80.onnx" > "$dir/train-$d.log" 2>&1
+      --early-stop 40 --decimation 1 --threads "$THREADS" --data "$data" --out "$dir/models/tcn_${d}_L80.onnx" > "$dir/train-$d.log" 2>&1
   done
   "$B" tune --data "$data" --forward "$dir/models/tcn_forward_L80.onnx" --inverse "$dir/models/tcn_inverse_L80.onnx" \
     --base configs/controller.toml --out "$dir/controller.toml" --force > "$dir/tune.log" 2>&1
