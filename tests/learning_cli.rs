@@ -232,6 +232,38 @@ fn train_writes_model_report_and_plot() {
 }
 
 #[test]
+fn auto_decimation_refuses_data_without_a_step() {
+    // A log whose commands never move: no grid to decide from. The error names the dataset
+    // and the flag, and writes nothing.
+    let tmp = tempfile::tempdir().unwrap();
+    let mut ds = hysteretic_dataset(400, 5, 3);
+    ds.q_cmd_deg.iter_mut().for_each(|q| *q = 10.0);
+    let dir = tmp.path().join("held");
+    ds.write_dir(&dir, "synthetic", Some(3), None, serde_json::Value::Null)
+        .unwrap();
+    let model = tmp.path().join("m.onnx");
+    fails_with(
+        &bowden(&[
+            "train",
+            "--arch",
+            "tcn",
+            "--direction",
+            "forward",
+            "--seq-len",
+            "8",
+            "--epochs",
+            "1",
+            "--data",
+            &dir.display().to_string(),
+            "--out",
+            &model.display().to_string(),
+        ]),
+        &["held", "--decimation auto", "give a number"],
+    );
+    assert!(!model.exists());
+}
+
+#[test]
 fn sweep_summarises_and_resumes() {
     let tmp = tempfile::tempdir().unwrap();
     let data = synthetic_dir(&tmp.path().join("data"), 900);
