@@ -4,6 +4,7 @@
 mod cli_support;
 use cli_support::{bowden, fails_with, ok};
 use std::path::Path;
+use std::process::Output;
 
 use bowden_learning::npy::write_npy_f64;
 use bowden_learning::synthetic::hysteretic_dataset;
@@ -94,29 +95,34 @@ fn import_csv_and_npy_with_clear_errors() {
     assert!(stdout.contains("3 samples (3 valid), 2 joints"), "{stdout}");
 }
 
+/// `bowden train --arch tcn --direction forward --data DATA --out OUT`, then `extra`.
+fn train_tcn_forward(data: &str, out: &str, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "train",
+        "--arch",
+        "tcn",
+        "--direction",
+        "forward",
+        "--data",
+        data,
+        "--out",
+        out,
+    ];
+    args.extend_from_slice(extra);
+    bowden(&args)
+}
+
 #[test]
 fn train_writes_model_report_and_plot() {
     let tmp = tempfile::tempdir().unwrap();
     let data = synthetic_dir(&tmp.path().join("data"), 1500);
     let model = tmp.path().join("models/tcn_forward.onnx");
     let model_s = model.display().to_string();
-    let stdout = ok(&bowden(&[
-        "train",
-        "--arch",
-        "tcn",
-        "--direction",
-        "forward",
-        "--seq-len",
-        "16",
-        "--epochs",
-        "3",
-        "--seed",
-        "1",
-        "--data",
+    let stdout = ok(&train_tcn_forward(
         &data,
-        "--out",
         &model_s,
-    ]));
+        &["--seq-len", "16", "--epochs", "3", "--seed", "1"],
+    ));
     assert!(stdout.contains("validation RMSE"), "{stdout}");
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(tmp.path().join("models/tcn_forward.report.json")).unwrap())
@@ -144,43 +150,18 @@ fn train_writes_model_report_and_plot() {
     assert_eq!(report["decimation_auto"]["larger_fraction"], 0.0);
     // A number is used as given, and nothing is chosen.
     let literal = tmp.path().join("models/tcn_forward_d1.onnx");
-    let stdout = ok(&bowden(&[
-        "train",
-        "--arch",
-        "tcn",
-        "--direction",
-        "forward",
-        "--seq-len",
-        "16",
-        "--epochs",
-        "1",
-        "--decimation",
-        "1",
-        "--data",
+    let stdout = ok(&train_tcn_forward(
         &data,
-        "--out",
         &literal.display().to_string(),
-    ]));
+        &["--seq-len", "16", "--epochs", "1", "--decimation", "1"],
+    ));
     assert!(!stdout.contains("decimation auto"), "{stdout}");
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(tmp.path().join("models/tcn_forward_d1.report.json")).unwrap())
             .unwrap();
     assert!(report["config"].get("decimation").is_none() && report.get("decimation_auto").is_none());
     fails_with(
-        &bowden(&[
-            "train",
-            "--arch",
-            "tcn",
-            "--direction",
-            "forward",
-            "--decimation",
-            "0",
-            "--data",
-            &data,
-            "--out",
-            &model_s,
-            "--force",
-        ]),
+        &train_tcn_forward(&data, &model_s, &["--decimation", "0", "--force"]),
         &["--decimation", "auto"],
     );
 
@@ -200,33 +181,12 @@ fn train_writes_model_report_and_plot() {
     );
     // The model is kept unless --force.
     fails_with(
-        &bowden(&[
-            "train",
-            "--arch",
-            "tcn",
-            "--direction",
-            "forward",
-            "--data",
-            &data,
-            "--out",
-            &model_s,
-        ]),
+        &train_tcn_forward(&data, &model_s, &[]),
         &["tcn_forward.onnx", "exists", "--force"],
     );
     let missing = tmp.path().join("nothing").display().to_string();
     fails_with(
-        &bowden(&[
-            "train",
-            "--arch",
-            "tcn",
-            "--direction",
-            "forward",
-            "--data",
-            &missing,
-            "--out",
-            &model_s,
-            "--force",
-        ]),
+        &train_tcn_forward(&missing, &model_s, &["--force"]),
         &["nothing", "manifest.json"],
     );
 }
@@ -243,21 +203,11 @@ fn auto_decimation_refuses_data_without_a_step() {
         .unwrap();
     let model = tmp.path().join("m.onnx");
     fails_with(
-        &bowden(&[
-            "train",
-            "--arch",
-            "tcn",
-            "--direction",
-            "forward",
-            "--seq-len",
-            "8",
-            "--epochs",
-            "1",
-            "--data",
+        &train_tcn_forward(
             &dir.display().to_string(),
-            "--out",
             &model.display().to_string(),
-        ]),
+            &["--seq-len", "8", "--epochs", "1"],
+        ),
         &["held", "--decimation auto", "give a number"],
     );
     assert!(!model.exists());
