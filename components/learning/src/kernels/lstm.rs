@@ -3,7 +3,9 @@
 //! against the recurrent weights plus one fused elementwise cell; the weight gradients of
 //! all steps are one GEMM each after the backward sweep.
 
-use super::bf16::{gemm_bf16_acc, pack_cols, pack_rows, pack_rows_into_ld, pack_transposed, pairs, PackedA};
+use super::bf16::{
+    gemm_bf16_acc, pack_cols, pack_rows, pack_rows_into, pack_rows_into_ld, pack_transposed, pairs, PackedA,
+};
 use super::gemm::{gemm_acc, gemm_set_bias, StridedA};
 use super::simd::{sigmoid_f32, simd_fn, tanh_f32};
 
@@ -54,6 +56,9 @@ pub struct LstmWork {
     /// Mixed precision only: dg[1..T] packed for dW_hh step by step during the backward
     /// sweep (while each step's rows are in L1), instead of in one pass afterwards.
     pack_dg: Vec<u32>,
+    /// Mixed precision, even b: whether the last forward pass already packed h_0..h_{T−2} into
+    /// `pack_b` (dW_hh's B operand) step by step, while each h_t was in L1.
+    hs_packed: bool,
 }
 
 impl LstmWork {
@@ -76,6 +81,7 @@ impl LstmWork {
             pack_a: Vec::new(),
             pack_b: Vec::new(),
             pack_dg: Vec::new(),
+            hs_packed: false,
         }
     }
 
@@ -241,6 +247,14 @@ pub fn forward(d: &LstmDims, prep: &LstmPrepared, b: usize, work: &mut LstmWork,
     let (t, j, h) = (d.t, d.j, d.h);
     let g4 = 4 * h;
     work.hs[..b * h].fill(0.0);
+    // dW_hh's B operand is h_0..h_{T−2} packed as bf16 row pairs; with b even no pair straddles
+    // two steps, so each step's rows are packed here, right after the cell wrote them, into the
+    // place the backward pass's one packing of all of them would put them: the same elements.
+    let pack_hs = mixed && b.is_multiple_of(2) && t > 1;
+    work.hs_packed = pack_hs;
+    if pack_hs {
+        work.pack_b.resize(pairs((t - 1) * b) * h, 0);
+    }
     for step in 0..t {
         let gs = &mut work.g[step * b * g4..(step + 1) * b * g4];
         // The bias and the input projection step by step, not for all T steps up front: a
@@ -305,6 +319,11 @@ pub fn forward(d: &LstmDims, prep: &LstmPrepared, b: usize, work: &mut LstmWork,
         );
         if !(mixed && mixed_cell::forward(gs, c_prev, c_out, tc_out, h_out, b, h)) {
             cell_fwd(gs, c_prev, c_out, tc_out, h_out, b, h);
+        }
+        if pack_hs && step + 1 < t {
+            // h_out is h_step: rows step·b.. of the operand, pair rows step·b/2..
+            let at = step * (b / 2) * h;
+            pack_rows_into(b, h, h_out, h, &mut work.pack_b[at..at + (b / 2) * h]);
         }
     }
 }
@@ -478,6 +497,12 @@ pub fn backward(
     if pack_per_step {
         work.pack_dg.resize(pairs((t - 1) * b) * lda, 0);
     }
+    // When every use of dg_t is inside its step (mixed precision, packed step by step, no
+    // dL/dx wanted), the steps share one `[b][4H]` slice that stays in L1, instead of a
+    // `[T][b][4H]` buffer (2.6 MB for a shard of 16) written through the caches and never read
+    // again. The same values: the same bits.
+    let dg_in_l1 = per_step && pack_per_step && !want_dx;
+    let dg_at = |step: usize| if dg_in_l1 { 0 } else { step * b * g4 };
     for step in (0..t).rev() {
         let c_prev: &[f32] = if step == 0 {
             &work.zeros[..b * h]
@@ -490,12 +515,12 @@ pub fn backward(
             c_prev,
             &work.dh[..b * h],
             &mut work.dc[..b * h],
-            &mut work.dg[step * b * g4..(step + 1) * b * g4],
+            &mut work.dg[dg_at(step)..dg_at(step) + b * g4],
             b,
             h,
         );
         if per_step {
-            let dg_t = &work.dg[step * b * g4..(step + 1) * b * g4];
+            let dg_t = &work.dg[dg_at(step)..dg_at(step) + b * g4];
             gemm_acc(
                 j,
                 g4,
@@ -517,13 +542,7 @@ pub fn backward(
             }
         }
         if step > 0 && mixed {
-            pack_cols(
-                b,
-                g4,
-                &work.dg[step * b * g4..(step + 1) * b * g4],
-                g4,
-                &mut work.pack_a,
-            );
+            pack_cols(b, g4, &work.dg[dg_at(step)..dg_at(step) + b * g4], g4, &mut work.pack_a);
             let a = PackedA {
                 data: &work.pack_a,
                 rs: pairs(g4),
@@ -540,7 +559,7 @@ pub fn backward(
                 h,
                 g4,
                 StridedA {
-                    data: &work.dg[step * b * g4..(step + 1) * b * g4],
+                    data: &work.dg[dg_at(step)..dg_at(step) + b * g4],
                     rs: g4,
                     cs: 1,
                 },
@@ -562,7 +581,9 @@ pub fn backward(
             work.pack_dg.resize(pairs(k) * lda, 0);
             pack_rows_into_ld(k, g4, &work.dg[b * g4..t * b * g4], g4, &mut work.pack_dg, lda);
         }
-        pack_rows(k, h, &work.hs[b * h..t * b * h], h, &mut work.pack_b);
+        if !work.hs_packed {
+            pack_rows(k, h, &work.hs[b * h..t * b * h], h, &mut work.pack_b);
+        }
         let a = PackedA {
             data: &work.pack_dg,
             rs: 1,
@@ -702,5 +723,61 @@ mod tests {
         close("tanh c", &got.2, &want.2, false);
         close("h", &got.3, &want.3, false);
         assert_ne!(got.0, want.0, "the mixed cell gave the f32 cell's bits: did it run?");
+    }
+
+    /// The mixed-precision sweep's two memory savings compute the same bits as the buffers
+    /// they replace: dg_t kept in one L1 slice (no dL/dx wanted) against the `[T][b][4H]`
+    /// buffer (dL/dx wanted), and h_t packed for dW_hh by the forward pass step by step against
+    /// one packing of all of them in the backward pass. Every parameter gradient, bit for bit.
+    #[test]
+    fn mixed_sweep_buffers_give_the_same_gradient_bits() {
+        let d = LstmDims { t: 9, j: 5, h: 32 };
+        let (g4, b) = (4 * d.h, 6);
+        let idx = LstmParamIdx {
+            w_ih: 0,
+            w_hh: g4 * d.j,
+            b_ih: g4 * d.j + g4 * d.h,
+            b_hh: g4 * d.j + g4 * d.h + g4,
+        };
+        let n = idx.b_hh + g4;
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let params: Vec<f32> = (0..n).map(|_| rng.random_range(-0.3..0.3)).collect();
+        let xt: Vec<f32> = (0..d.t * b * d.j).map(|_| rng.random_range(-2.0..2.0)).collect();
+        let dh_last: Vec<f32> = (0..b * d.h).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let mut prep = LstmPrepared::default();
+        prep.prepare(&d, &params, &idx, true);
+        // (dL/dx wanted, h packed by the backward pass) → the four parameter gradients.
+        let run = |want_dx: bool, pack_in_backward: bool| {
+            let mut work = LstmWork::new(&d, b);
+            work.xt.copy_from_slice(&xt);
+            forward(&d, &prep, b, &mut work, true);
+            assert!(work.hs_packed, "an even b packs h in the forward pass");
+            if pack_in_backward {
+                work.pack_b.iter_mut().for_each(|v| *v = 0);
+                work.hs_packed = false;
+            }
+            let (mut w_ih, mut w_hh, mut b_ih, mut b_hh) =
+                (vec![0.0; g4 * d.j], vec![0.0; g4 * d.h], vec![0.0; g4], vec![0.0; g4]);
+            let grads = LstmGrads {
+                w_ih: &mut w_ih,
+                w_hh: &mut w_hh,
+                b_ih: &mut b_ih,
+                b_hh: &mut b_hh,
+            };
+            backward(&d, &params, &idx, &prep, b, &dh_last, &mut work, grads, want_dx, true);
+            [w_ih, w_hh, b_ih, b_hh]
+        };
+        let reference = run(true, true);
+        assert!(reference[1].iter().any(|&v| v != 0.0));
+        for (want_dx, in_backward) in [(false, false), (false, true), (true, false)] {
+            let got = run(want_dx, in_backward);
+            for (name, (a, w)) in ["w_ih", "w_hh", "b_ih", "b_hh"].iter().zip(got.iter().zip(&reference)) {
+                let same = a.iter().zip(w).all(|(x, y)| x.to_bits() == y.to_bits());
+                assert!(
+                    same,
+                    "{name}: want_dx {want_dx}, h packed in the backward pass {in_backward}"
+                );
+            }
+        }
     }
 }
