@@ -36,8 +36,19 @@ def solve(a, b):
 
 
 def main():
-    path, after_s = sys.argv[1], float(sys.argv[2])
-    pts = json.load(open(path))["runs"][0]["points"]
+    if len(sys.argv) != 3:
+        sys.exit("usage: error_structure.py DIR/session.json AFTER_S")
+    path = sys.argv[1]
+    try:
+        after_s = float(sys.argv[2])
+    except ValueError:
+        sys.exit(f"error_structure.py: AFTER_S {sys.argv[2]!r} is not a number of seconds")
+    try:
+        pts = json.load(open(path))["runs"][0]["points"]
+    except (OSError, ValueError, KeyError, IndexError, TypeError) as e:
+        sys.exit(f"error_structure.py: {path}: not a session report of `bowden evaluate --session` ({e!r})")
+    if not pts:
+        sys.exit(f"error_structure.py: {path}: the first run has no points")
     j = len(pts[0]["q_desired_deg"])
     dirs, cur, prev = [], [0.0] * j, None
     for p in pts:
