@@ -439,10 +439,19 @@ mod mixed_cell {
                     _mm512_storeu_ps(gr.add(3 * hd + u), og);
                     // c = f·c_prev + i·g, as the f32 cell computes it (product, product, sum).
                     let cn = _mm512_add_ps(_mm512_mul_ps(f, _mm512_loadu_ps(cp.add(o + u))), _mm512_mul_ps(i, gg));
-                    let t = tanh(cn);
                     _mm512_storeu_ps(c.add(o + u), cn);
+                }
+            }
+            // tanh(c) in a second pass: in one loop it hung a second activation chain off the
+            // first, and the out-of-order window held fewer independent iterations (the same
+            // operations on every element, so the same bits; interleaved runs ≈ 1.5 % faster).
+            for r in 0..b {
+                let gr = g.add(r * 4 * hd);
+                let o = r * hd;
+                for u in (0..hd).step_by(16) {
+                    let t = tanh(_mm512_loadu_ps(c.add(o + u)));
                     _mm512_storeu_ps(tc.add(o + u), t);
-                    _mm512_storeu_ps(h.add(o + u), _mm512_mul_ps(og, t));
+                    _mm512_storeu_ps(h.add(o + u), _mm512_mul_ps(_mm512_loadu_ps(gr.add(3 * hd + u)), t));
                 }
             }
         }
