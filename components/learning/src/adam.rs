@@ -2,14 +2,16 @@
 //! no weight decay) — equivalently candle's `AdamW` with weight decay 0 — over a flat
 //! parameter vector.
 
+use crate::kernels::AVec;
+
 #[derive(Debug, Clone)]
 pub struct Adam {
     pub lr: f64,
     pub beta1: f64,
     pub beta2: f64,
     pub eps: f64,
-    m: Vec<f32>,
-    v: Vec<f32>,
+    m: AVec<f32>,
+    v: AVec<f32>,
     t: u64,
 }
 
@@ -20,8 +22,8 @@ impl Adam {
             beta1: 0.9,
             beta2: 0.999,
             eps: 1e-8,
-            m: vec![0.0; n],
-            v: vec![0.0; n],
+            m: AVec::from_elem(0.0, n),
+            v: AVec::from_elem(0.0, n),
             t: 0,
         }
     }

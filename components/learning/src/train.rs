@@ -16,7 +16,7 @@ use crate::adam::Adam;
 use crate::arch::{Arch, Direction, ModelSpec, TcnBlock};
 use crate::candle_ref::CandleModel;
 use crate::helper::Helper;
-use crate::kernels::{Net, Precision, Prepared, Workspace};
+use crate::kernels::{AVec, Net, Precision, Prepared, Workspace};
 use crate::onnx::ModelFile;
 use crate::windows::{overall_rmse, WindowSet};
 
@@ -167,17 +167,17 @@ impl TrainOutcome {
 /// Per-shard buffers of the fused engine.
 struct Shard {
     ws: Workspace,
-    grad: Vec<f32>,
-    x: Vec<f32>,
-    y: Vec<f32>,
-    out: Vec<f32>,
+    grad: AVec<f32>,
+    x: AVec<f32>,
+    y: AVec<f32>,
+    out: AVec<f32>,
 }
 
 #[allow(clippy::large_enum_variant)] // one per training run
 enum Engine {
     Fused {
         net: Net,
-        params: Vec<f32>,
+        params: AVec<f32>,
         prep: Prepared,
         adam: Adam,
         shards: Vec<Shard>,
@@ -242,16 +242,16 @@ impl Engine {
                 let shards = (0..SHARDS)
                     .map(|_| Shard {
                         ws: net.workspace(cap),
-                        grad: vec![0.0; net.param_count()],
-                        x: vec![0.0; cap * l * j],
-                        y: vec![0.0; cap * j],
-                        out: vec![0.0; cap * j],
+                        grad: AVec::from_elem(0.0, net.param_count()),
+                        x: AVec::from_elem(0.0, cap * l * j),
+                        y: AVec::from_elem(0.0, cap * j),
+                        out: AVec::from_elem(0.0, cap * j),
                     })
                     .collect();
                 Engine::Fused {
                     adam: Adam::new(net.param_count(), cfg.lr),
                     net,
-                    params,
+                    params: AVec::from_slice(&params),
                     prep,
                     shards,
                     pool,
@@ -425,7 +425,7 @@ impl Engine {
 
     fn params(&self) -> Result<Vec<f32>, TrainError> {
         match self {
-            Engine::Fused { params, .. } => Ok(params.clone()),
+            Engine::Fused { params, .. } => Ok(params.to_vec()),
             Engine::Candle { model, .. } => Ok(model.params()?),
         }
     }

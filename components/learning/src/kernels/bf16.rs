@@ -17,6 +17,7 @@
 //! exact in f32) summed pair by pair, so the two paths agree to f32 rounding, not bit for
 //! bit.
 
+use super::aligned::AVec;
 use super::simd::simd_fn;
 
 /// f32 → bfloat16 bits, round to nearest, ties to even; a NaN stays a NaN (quieted); an f32
@@ -157,7 +158,7 @@ mod convert {
 /// Packs the `k` rows of a row-major matrix (`n` columns, leading dimension `ld`) as
 /// `[pairs(k)][n]`: element `(p, j)` pairs rows 2p and 2p + 1 of column j. This is B's
 /// packing, and k-major A's when A = Xᵀ (then `n` = A's m).
-pub fn pack_rows(k: usize, n: usize, x: &[f32], ld: usize, out: &mut Vec<u32>) {
+pub fn pack_rows(k: usize, n: usize, x: &[f32], ld: usize, out: &mut AVec<u32>) {
     out.resize(pairs(k) * n, 0);
     pack_rows_into(k, n, x, ld, out);
 }
@@ -190,7 +191,7 @@ pub fn pack_rows_into_ld(k: usize, n: usize, x: &[f32], ld: usize, out: &mut [u3
 /// Packs Xᵀ as B for a row-major X (`rows × k`, contiguous): element `(p, r)` of the
 /// `[pairs(k)][rows]` result pairs X[r][2p] and X[r][2p + 1], so it equals [`pack_rows`] of
 /// the transposed copy of X, element for element, without making that copy.
-pub fn pack_transposed(rows: usize, k: usize, x: &[f32], out: &mut Vec<u32>) {
+pub fn pack_transposed(rows: usize, k: usize, x: &[f32], out: &mut AVec<u32>) {
     const BS: usize = 16;
     let kp = pairs(k);
     out.resize(kp * rows, 0);
@@ -231,7 +232,7 @@ pub fn pack_transposed(rows: usize, k: usize, x: &[f32], out: &mut Vec<u32>) {
 }
 
 /// Packs a row-major A (`m × k`, leading dimension `ld`) as `[m][pairs(k)]`.
-pub fn pack_cols(m: usize, k: usize, a: &[f32], ld: usize, out: &mut Vec<u32>) {
+pub fn pack_cols(m: usize, k: usize, a: &[f32], ld: usize, out: &mut AVec<u32>) {
     let kp = pairs(k);
     out.resize(m * kp, 0);
     for i in 0..m {
@@ -440,7 +441,7 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         for &(k, n, pad) in &[(32usize, 512usize, 32usize), (9, 40, 16), (1, 7, 1)] {
             let x: Vec<f32> = (0..k * n).map(|_| rng.random_range(-3.0..3.0)).collect();
-            let mut want = Vec::new();
+            let mut want = AVec::new();
             pack_rows(k, n, &x, n, &mut want);
             let ldo = n + pad;
             let mut got = vec![0xdead_beefu32; pairs(k) * ldo];
@@ -455,7 +456,7 @@ mod tests {
             }
             // As a k-major A (m = n rows of C) against a B of 24 columns.
             let bm: Vec<f32> = (0..k * 24).map(|_| rng.random_range(-3.0..3.0)).collect();
-            let mut bp = Vec::new();
+            let mut bp = AVec::new();
             pack_rows(k, 24, &bm, 24, &mut bp);
             let (mut c0, mut c1) = (vec![0.0f32; n * 24], vec![0.0f32; n * 24]);
             let a0 = PackedA {
@@ -491,7 +492,7 @@ mod tests {
                     xt[c * rows + r] = x[r * k + c];
                 }
             }
-            let (mut want, mut got) = (Vec::new(), Vec::new());
+            let (mut want, mut got) = (AVec::new(), AVec::new());
             pack_rows(k, rows, &xt, rows, &mut want);
             pack_transposed(rows, k, &x, &mut got);
             assert_eq!(got, want, "{rows} rows × k = {k}");
@@ -521,7 +522,7 @@ mod tests {
                 let b: Vec<f32> = (0..k * ldb).map(|_| rng.random_range(-1.0..1.0)).collect();
                 let ldc = n + 1;
                 let c0: Vec<f32> = (0..m * ldc).map(|_| rng.random_range(-1.0..1.0)).collect();
-                let (mut pa, mut pb) = (Vec::new(), Vec::new());
+                let (mut pa, mut pb) = (AVec::new(), AVec::new());
                 let kp = pairs(k);
                 let (rs, ps) = if k_major {
                     pack_rows(k, m, &x, m, &mut pa);

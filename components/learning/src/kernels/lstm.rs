@@ -3,6 +3,7 @@
 //! against the recurrent weights plus one fused elementwise cell; the weight gradients of
 //! all steps are one GEMM each after the backward sweep.
 
+use super::aligned::AVec;
 use super::bf16::{
     gemm_bf16_acc, pack_cols, pack_rows, pack_rows_into, pack_rows_into_ld, pack_transposed, pairs, PackedA,
 };
@@ -31,31 +32,31 @@ pub struct LstmParamIdx {
 pub struct LstmWork {
     pub cap: usize,
     /// Inputs, `[T][b][J]`.
-    pub xt: Vec<f32>,
+    pub xt: AVec<f32>,
     /// Gate activations i, f, g, o after their nonlinearity, `[T][b][4H]`.
-    g: Vec<f32>,
+    g: AVec<f32>,
     /// Cell states c_t, `[T][b][H]`.
-    cs: Vec<f32>,
+    cs: AVec<f32>,
     /// tanh(c_t), `[T][b][H]`.
-    tc: Vec<f32>,
+    tc: AVec<f32>,
     /// Hidden states, `[T+1][b][H]`, `hs[0] = 0`, `hs[t+1] = h_t`.
-    pub hs: Vec<f32>,
+    pub hs: AVec<f32>,
     /// Pre-activation gate gradients, `[T][b][4H]`.
-    dg: Vec<f32>,
-    dh: Vec<f32>,
-    dc: Vec<f32>,
+    dg: AVec<f32>,
+    dh: AVec<f32>,
+    dc: AVec<f32>,
     /// Input gradients, `[T][b][J]`.
-    pub dxt: Vec<f32>,
-    dwt: Vec<f32>,
-    colsum: Vec<f32>,
-    zeros: Vec<f32>,
+    pub dxt: AVec<f32>,
+    dwt: AVec<f32>,
+    colsum: AVec<f32>,
+    zeros: AVec<f32>,
     /// Mixed precision only: the A and B operands of one product packed as bf16 pairs
     /// (sized on first use, then reused).
-    pack_a: Vec<u32>,
-    pack_b: Vec<u32>,
+    pack_a: AVec<u32>,
+    pack_b: AVec<u32>,
     /// Mixed precision only: dg[1..T] packed for dW_hh step by step during the backward
     /// sweep (while each step's rows are in L1), instead of in one pass afterwards.
-    pack_dg: Vec<u32>,
+    pack_dg: AVec<u32>,
     /// Mixed precision, even b: whether the last forward pass already packed h_0..h_{T−2} into
     /// `pack_b` (dW_hh's B operand) step by step, while each h_t was in L1.
     hs_packed: bool,
@@ -66,21 +67,21 @@ impl LstmWork {
         let (t, j, h) = (d.t, d.j, d.h);
         Self {
             cap,
-            xt: vec![0.0; t * cap * j],
-            g: vec![0.0; t * cap * 4 * h],
-            cs: vec![0.0; t * cap * h],
-            tc: vec![0.0; t * cap * h],
-            hs: vec![0.0; (t + 1) * cap * h],
-            dg: vec![0.0; t * cap * 4 * h],
-            dh: vec![0.0; cap * h],
-            dc: vec![0.0; cap * h],
-            dxt: vec![0.0; t * cap * j],
-            dwt: vec![0.0; j * 4 * h],
-            colsum: vec![0.0; 4 * h],
-            zeros: vec![0.0; cap * h],
-            pack_a: Vec::new(),
-            pack_b: Vec::new(),
-            pack_dg: Vec::new(),
+            xt: AVec::from_elem(0.0, t * cap * j),
+            g: AVec::from_elem(0.0, t * cap * 4 * h),
+            cs: AVec::from_elem(0.0, t * cap * h),
+            tc: AVec::from_elem(0.0, t * cap * h),
+            hs: AVec::from_elem(0.0, (t + 1) * cap * h),
+            dg: AVec::from_elem(0.0, t * cap * 4 * h),
+            dh: AVec::from_elem(0.0, cap * h),
+            dc: AVec::from_elem(0.0, cap * h),
+            dxt: AVec::from_elem(0.0, t * cap * j),
+            dwt: AVec::from_elem(0.0, j * 4 * h),
+            colsum: AVec::from_elem(0.0, 4 * h),
+            zeros: AVec::from_elem(0.0, cap * h),
+            pack_a: AVec::new(),
+            pack_b: AVec::new(),
+            pack_dg: AVec::new(),
             hs_packed: false,
         }
     }
@@ -96,21 +97,21 @@ impl LstmWork {
 #[derive(Debug, Clone, Default)]
 pub struct LstmPrepared {
     /// W_ihᵀ, `[J][4H]`.
-    pub wt_ih: Vec<f32>,
+    pub wt_ih: AVec<f32>,
     /// W_hhᵀ, `[H][4H]`.
-    pub rt: Vec<f32>,
+    pub rt: AVec<f32>,
     /// b_ih + b_hh, `[4H]`.
-    pub bias: Vec<f32>,
+    pub bias: AVec<f32>,
     /// Mixed precision: W_hhᵀ and W_hh as the B operands of the recurrent products, packed
     /// as bf16 pairs ([`super::bf16`]); empty in f32.
-    pub rt_bf16: Vec<u32>,
-    pub r_bf16: Vec<u32>,
+    pub rt_bf16: AVec<u32>,
+    pub r_bf16: AVec<u32>,
     /// Whether `rt` matches the weights (see [`LstmPrepared::prepare_for_mixed_step`]).
     pub rt_fresh: bool,
 }
 
 /// `dst` (`[cols][rows]`) = `src` (`[rows][cols]`)ᵀ.
-pub fn transpose(src: &[f32], rows: usize, cols: usize, dst: &mut Vec<f32>) {
+pub fn transpose(src: &[f32], rows: usize, cols: usize, dst: &mut AVec<f32>) {
     // In 16 × 16 blocks: row by row, the writes run down a column of `dst` with a stride of
     // `rows` floats (2 KiB for W_hh), whose lines all fall in the same few L1 sets and evict
     // each other before the next row fills them.

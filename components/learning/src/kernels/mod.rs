@@ -4,6 +4,7 @@
 //! autograd — at a fraction of the cost: no graph, no per-op allocation, one GEMM per LSTM
 //! step, the TCN's 5-channel convolutions as shifted vector loops.
 
+pub mod aligned;
 pub mod bf16;
 pub mod gemm;
 pub mod linear;
@@ -12,6 +13,7 @@ pub mod simd;
 pub mod tcn;
 
 use crate::arch::{Arch, ModelSpec, ParamLayout, FNN_HIDDEN, HEAD_HIDDEN, LSTM_HIDDEN};
+pub use aligned::AVec;
 use lstm::{LstmDims, LstmGrads, LstmParamIdx, LstmPrepared, LstmWork};
 use tcn::{TcnDims, TcnParamIdx, TcnScratch};
 
@@ -83,23 +85,23 @@ pub struct Net {
 pub struct Prepared {
     lstm: LstmPrepared,
     /// Wᵀ of each layer of `mlp`.
-    lin_t: Vec<Vec<f32>>,
+    lin_t: Vec<AVec<f32>>,
 }
 
 /// Per-thread buffers for up to `cap` windows.
 #[derive(Debug, Clone)]
 pub struct Workspace {
     cap: usize,
-    tcn_cache: Vec<f32>,
+    tcn_cache: AVec<f32>,
     tcn_scratch: Option<TcnScratch>,
-    dz_out: Vec<f32>,
+    dz_out: AVec<f32>,
     lstm: Option<LstmWork>,
     /// Output of each mlp layer (after ReLU), `[b][n_out]`.
-    acts: Vec<Vec<f32>>,
+    acts: Vec<AVec<f32>>,
     /// Gradient buffers, one per mlp layer input.
-    dacts: Vec<Vec<f32>>,
-    out: Vec<f32>,
-    dout: Vec<f32>,
+    dacts: Vec<AVec<f32>>,
+    out: AVec<f32>,
+    dout: AVec<f32>,
 }
 
 impl Workspace {
@@ -188,11 +190,11 @@ impl Net {
         let j = self.spec.joints;
         let (tcn_cache, tcn_scratch, dz_out) = match &self.tcn {
             Some((d, _)) => (
-                vec![0.0; cap * d.cache_per_window()],
+                AVec::from_elem(0.0, cap * d.cache_per_window()),
                 Some(TcnScratch::new(d)),
-                vec![0.0; d.c * d.t],
+                AVec::from_elem(0.0, d.c * d.t),
             ),
-            None => (Vec::new(), None, Vec::new()),
+            None => (AVec::new(), None, AVec::new()),
         };
         Workspace {
             cap,
@@ -200,10 +202,10 @@ impl Net {
             tcn_scratch,
             dz_out,
             lstm: self.lstm.as_ref().map(|(d, _)| LstmWork::new(d, cap)),
-            acts: self.mlp.iter().map(|l| vec![0.0; cap * l.n_out]).collect(),
-            dacts: self.mlp.iter().map(|l| vec![0.0; cap * l.n_in]).collect(),
-            out: vec![0.0; cap * j],
-            dout: vec![0.0; cap * j],
+            acts: self.mlp.iter().map(|l| AVec::from_elem(0.0, cap * l.n_out)).collect(),
+            dacts: self.mlp.iter().map(|l| AVec::from_elem(0.0, cap * l.n_in)).collect(),
+            out: AVec::from_elem(0.0, cap * j),
+            dout: AVec::from_elem(0.0, cap * j),
         }
     }
 
@@ -217,7 +219,7 @@ impl Net {
         if let Some((d, idx)) = &self.lstm {
             prep.lstm.prepare(d, params, idx, self.mixed());
         }
-        prep.lin_t.resize(self.mlp.len(), Vec::new());
+        prep.lin_t.resize(self.mlp.len(), AVec::new());
         for (l, t) in self.mlp.iter().zip(prep.lin_t.iter_mut()) {
             lstm::transpose(&params[l.w..l.w + l.n_out * l.n_in], l.n_out, l.n_in, t);
         }
@@ -230,7 +232,7 @@ impl Net {
         match &self.lstm {
             Some((d, idx)) if self.mixed() => {
                 prep.lstm.prepare_for_mixed_step(d, params, idx);
-                prep.lin_t.resize(self.mlp.len(), Vec::new());
+                prep.lin_t.resize(self.mlp.len(), AVec::new());
                 for (l, t) in self.mlp.iter().zip(prep.lin_t.iter_mut()) {
                     lstm::transpose(&params[l.w..l.w + l.n_out * l.n_in], l.n_out, l.n_in, t);
                 }
@@ -401,7 +403,7 @@ impl Net {
     }
 }
 
-fn mlp_forward(mlp: &[Lin], params: &[f32], prep: &Prepared, input: &[f32], b: usize, acts: &mut [Vec<f32>]) {
+fn mlp_forward(mlp: &[Lin], params: &[f32], prep: &Prepared, input: &[f32], b: usize, acts: &mut [AVec<f32>]) {
     for (i, l) in mlp.iter().enumerate() {
         let (done, rest) = acts.split_at_mut(i);
         let x: &[f32] = if i == 0 { input } else { &done[i - 1] };
@@ -420,9 +422,9 @@ fn mlp_backward(
     params: &[f32],
     input: &[f32],
     b: usize,
-    acts: &[Vec<f32>],
+    acts: &[AVec<f32>],
     dout: &[f32],
-    dacts: &mut [Vec<f32>],
+    dacts: &mut [AVec<f32>],
     grad: &mut [f32],
     want_input_grad: bool,
 ) {

@@ -5,6 +5,7 @@
 //! shifted slice — the left zero padding of PyTorch's `F.pad(x, (2d, 0))` — and every inner
 //! loop runs over T contiguous time steps (vectorised across time).
 
+use super::aligned::AVec;
 use super::simd::simd_fn;
 use crate::arch::{tcn_dilation, TcnBlock, TCN_KERNEL};
 
@@ -70,21 +71,21 @@ pub struct TcnParamIdx {
 /// Per-thread scratch for the backward pass.
 #[derive(Debug, Clone)]
 pub struct TcnScratch {
-    dz: Vec<f32>,
-    dh1: Vec<f32>,
+    dz: AVec<f32>,
+    dh1: AVec<f32>,
     /// Gradients at a conv's output, `C` rows of `T + pad` floats (then `LANES` spare), so
     /// the input-gradient loop reads `g[t + shift]` past a row's end without a bounds
     /// branch (those lanes are masked out).
-    da: Vec<f32>,
+    da: AVec<f32>,
 }
 
 impl TcnScratch {
     pub fn new(d: &TcnDims) -> Self {
         Self {
-            dz: vec![0.0; d.plane()],
-            dh1: vec![0.0; d.plane()],
+            dz: AVec::from_elem(0.0, d.plane()),
+            dh1: AVec::from_elem(0.0, d.plane()),
             // A register block may read up to LANES − 1 floats past the last row (masked).
-            da: vec![0.0; d.c * d.s() + LANES],
+            da: AVec::from_elem(0.0, d.c * d.s() + LANES),
         }
     }
 }
