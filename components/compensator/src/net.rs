@@ -25,6 +25,7 @@
 //! Arithmetic is f32 like the model; plain loops over 8-lane padded channel blocks that the
 //! compiler turns into SIMD (no `mul_add`: without an FMA target feature it is a libm call).
 
+use bowden_fastmath::AVec;
 use std::sync::Arc;
 
 mod activation;
@@ -76,8 +77,8 @@ pub(crate) enum Op {
         k: usize,
         dil: usize,
         c_in: usize,
-        w: Vec<f32>,
-        b: Vec<f32>,
+        w: AVec<f32>,
+        b: AVec<f32>,
         relu: bool,
         residual: Option<NodeId>,
     },
@@ -91,9 +92,9 @@ pub(crate) enum Op {
         src: NodeId,
         input: usize,
         hidden: usize,
-        wr: Vec<f32>,
-        b: Vec<f32>,
-        wb: Vec<f32>,
+        wr: AVec<f32>,
+        b: AVec<f32>,
+        wb: AVec<f32>,
     },
     /// The last column of a sequence, as a vector.
     TakeLast {
@@ -103,15 +104,15 @@ pub(crate) enum Op {
     FlattenDense {
         src: NodeId,
         c_in: usize,
-        w: Vec<f32>,
-        b: Vec<f32>,
+        w: AVec<f32>,
+        b: AVec<f32>,
     },
     /// Dense layer on a vector: `w` is `[n_in][n_p]`, `b` is `[n_p]`.
     Dense {
         src: NodeId,
         n_in: usize,
-        w: Vec<f32>,
-        b: Vec<f32>,
+        w: AVec<f32>,
+        b: AVec<f32>,
         relu: bool,
     },
 }
@@ -426,24 +427,24 @@ pub struct IncrementalNet {
     /// Offset of the newest column (sequence nodes) or 0 (vectors).
     last: Vec<usize>,
     /// Sequence nodes: (margin + L)·cp; vector nodes: cp.
-    vals: Vec<Vec<f32>>,
+    vals: Vec<AVec<f32>>,
     /// Tangents of the newest column / the vector: J·cp (direction j at j·cp).
-    tans: Vec<Vec<f32>>,
+    tans: Vec<AVec<f32>>,
     /// LSTM cell states per column (L·hp) and the gate activations of the last computed
     /// column (4·hp), which is the newest one when tangents are taken.
-    lstm_c: Vec<Vec<f32>>,
-    lstm_gates: Vec<Vec<f32>>,
+    lstm_c: Vec<AVec<f32>>,
+    lstm_gates: Vec<AVec<f32>>,
     /// Scratch for one direction of LSTM gate tangents (4·hp).
-    lstm_dz: Vec<f32>,
+    lstm_dz: AVec<f32>,
     /// What a trial adds its newest-column terms to, fixed per window: FlattenDense, the sum
     /// over the prefix columns (cp); Conv, bias + the taps reading prefix columns (cp); LSTM,
     /// bias + R·h_{L−2} (4·hp).
-    partial: Vec<Vec<f32>>,
+    partial: Vec<AVec<f32>>,
     /// The inputs of one matrix-vector product, gathered ([x; h] of an LSTM, the flattened
     /// prefix).
-    xin: Vec<f32>,
+    xin: AVec<f32>,
     /// Zeros, as the initial value of tangent products.
-    zeros: Vec<f32>,
+    zeros: AVec<f32>,
     rf: Vec<usize>,
     prefix_valid: bool,
     /// The compiled trial of a narrow net (every value ≤ LANES channels: the TCNs), used by
@@ -473,16 +474,16 @@ impl IncrementalNet {
             let p = padded(node.c);
             cp.push(p);
             zeros_len = zeros_len.max(p);
-            vals.push(vec![0.0f32; if node.seq { (margin[id] + l) * p } else { p }]);
-            tans.push(vec![0.0f32; j * p]);
+            vals.push(AVec::from_elem(0.0, if node.seq { (margin[id] + l) * p } else { p }));
+            tans.push(AVec::from_elem(0.0, j * p));
             let (c_state, gates) = match &node.op {
                 Op::Lstm { input, hidden, .. } => {
                     dz_len = dz_len.max(4 * p);
                     zeros_len = zeros_len.max(4 * p);
                     xin_len = xin_len.max(input + hidden);
-                    (vec![0.0f32; l * p], vec![0.0f32; 4 * p])
+                    (AVec::from_elem(0.0, l * p), AVec::from_elem(0.0, 4 * p))
                 }
-                _ => (Vec::new(), Vec::new()),
+                _ => (AVec::new(), AVec::new()),
             };
             lstm_c.push(c_state);
             lstm_gates.push(gates);
@@ -490,9 +491,9 @@ impl IncrementalNet {
                 xin_len = xin_len.max(l * c_in);
             }
             partial.push(match node.op {
-                Op::FlattenDense { .. } | Op::Conv { .. } => vec![0.0f32; p],
-                Op::Lstm { .. } => vec![0.0f32; 4 * p],
-                _ => Vec::new(),
+                Op::FlattenDense { .. } | Op::Conv { .. } => AVec::from_elem(0.0, p),
+                Op::Lstm { .. } => AVec::from_elem(0.0, 4 * p),
+                _ => AVec::new(),
             });
         }
         // The input's tangents are the identity: ∂x_i/∂x_j = δ_ij.
@@ -519,10 +520,10 @@ impl IncrementalNet {
             tans,
             lstm_c,
             lstm_gates,
-            lstm_dz: vec![0.0; dz_len],
+            lstm_dz: AVec::from_elem(0.0, dz_len),
             partial,
-            xin: vec![0.0; xin_len],
-            zeros: vec![0.0; zeros_len],
+            xin: AVec::from_elem(0.0, xin_len),
+            zeros: AVec::from_elem(0.0, zeros_len),
             rf,
             prefix_valid: false,
             narrow: narrow::Plan::compile(&net),
@@ -1469,8 +1470,8 @@ pub(crate) mod build {
                 k,
                 dil,
                 c_in,
-                w,
-                b,
+                w: AVec::from_slice(&w),
+                b: AVec::from_slice(&b),
                 relu: false,
                 residual: None,
             },
@@ -1494,8 +1495,8 @@ pub(crate) mod build {
             op: Op::Dense {
                 src,
                 n_in,
-                w,
-                b,
+                w: AVec::from_slice(&w),
+                b: AVec::from_slice(&b),
                 relu: false,
             },
             seq: false,
@@ -1517,7 +1518,12 @@ pub(crate) mod build {
         let mut b = vec![0.0f32; p];
         b[..n_out].copy_from_slice(bias);
         Node {
-            op: Op::FlattenDense { src, c_in, w, b },
+            op: Op::FlattenDense {
+                src,
+                c_in,
+                w: AVec::from_slice(&w),
+                b: AVec::from_slice(&b),
+            },
             seq: false,
             c: n_out,
         }
@@ -1547,9 +1553,9 @@ pub(crate) mod build {
                 src,
                 input,
                 hidden,
-                wr,
-                b,
-                wb,
+                wr: AVec::from_slice(&wr),
+                b: AVec::from_slice(&b),
+                wb: AVec::from_slice(&wb),
             },
             seq: true,
             c: hidden,

@@ -15,6 +15,13 @@
 //!
 //! NaN in gives NaN out (`f32::clamp` keeps it), so a NaN input still reaches the callers'
 //! non-finite checks.
+//!
+//! Both sides also share [`AVec`], the buffer type of their weights and workspaces: its data
+//! start on a 64-byte cache line, so no vector load of a weight row straddles two lines
+//! whatever the allocator returned ([`aligned`]).
+
+pub mod aligned;
+pub use aligned::AVec;
 
 const LOG2E: f32 = std::f32::consts::LOG2_E;
 const LN2_HI: f32 = 0.693_359_4;

@@ -133,7 +133,7 @@ impl Plan {
 
     /// Takes the window's partial sums (the generic evaluator's `partial`, one per node; only
     /// convolutions have one).
-    pub(crate) fn load_partials(&mut self, partial: &[Vec<f32>]) {
+    pub(crate) fn load_partials(&mut self, partial: &[bowden_fastmath::AVec<f32>]) {
         for (dst, src) in self.partial.iter_mut().zip(partial) {
             if let Some(c) = src.get(..LANES) {
                 dst.copy_from_slice(c);

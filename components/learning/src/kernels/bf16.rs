@@ -17,8 +17,8 @@
 //! exact in f32) summed pair by pair, so the two paths agree to f32 rounding, not bit for
 //! bit.
 
-use super::aligned::AVec;
 use super::simd::simd_fn;
+use bowden_fastmath::AVec;
 
 /// f32 → bfloat16 bits, round to nearest, ties to even; a NaN stays a NaN (quieted); an f32
 /// denormal becomes a zero of its sign. That is `vcvtneps2bf16`'s conversion exactly, so the

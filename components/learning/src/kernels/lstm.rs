@@ -3,12 +3,12 @@
 //! against the recurrent weights plus one fused elementwise cell; the weight gradients of
 //! all steps are one GEMM each after the backward sweep.
 
-use super::aligned::AVec;
 use super::bf16::{
     gemm_bf16_acc, pack_cols, pack_rows, pack_rows_into, pack_rows_into_ld, pack_transposed, pairs, PackedA,
 };
 use super::gemm::{gemm_acc, gemm_set_bias, StridedA};
 use super::simd::{sigmoid_f32, simd_fn, tanh_f32};
+use bowden_fastmath::AVec;
 
 /// Shapes: batch rows `b`, steps `t`, input `j`, hidden `h`.
 #[derive(Debug, Clone, Copy)]

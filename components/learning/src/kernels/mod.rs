@@ -4,7 +4,6 @@
 //! autograd — at a fraction of the cost: no graph, no per-op allocation, one GEMM per LSTM
 //! step, the TCN's 5-channel convolutions as shifted vector loops.
 
-pub mod aligned;
 pub mod bf16;
 pub mod gemm;
 pub mod linear;
@@ -13,7 +12,7 @@ pub mod simd;
 pub mod tcn;
 
 use crate::arch::{Arch, ModelSpec, ParamLayout, FNN_HIDDEN, HEAD_HIDDEN, LSTM_HIDDEN};
-pub use aligned::AVec;
+pub use bowden_fastmath::AVec;
 use lstm::{LstmDims, LstmGrads, LstmParamIdx, LstmPrepared, LstmWork};
 use tcn::{TcnDims, TcnParamIdx, TcnScratch};
 

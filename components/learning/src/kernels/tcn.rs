@@ -5,9 +5,9 @@
 //! shifted slice — the left zero padding of PyTorch's `F.pad(x, (2d, 0))` — and every inner
 //! loop runs over T contiguous time steps (vectorised across time).
 
-use super::aligned::AVec;
 use super::simd::simd_fn;
 use crate::arch::{tcn_dilation, TcnBlock, TCN_KERNEL};
+use bowden_fastmath::AVec;
 
 /// Shapes of one TCN.
 #[derive(Debug, Clone, Copy)]
