@@ -155,6 +155,10 @@ fn bad_rows_are_refused_and_counted() {
     assert!(e.contains("windw_rows"), "{e}");
     let e = AdaptConfig::from_toml("[adapt]\nanchor = -0.5\n").unwrap_err();
     assert!(e.contains("anchor"), "{e}");
+    for bad in ["0.0", "1.5", "nan"] {
+        let e = AdaptConfig::from_toml(&format!("[adapt]\ninterpolate = {bad}\n")).unwrap_err();
+        assert!(e.contains("interpolate"), "{bad}: {e}");
+    }
 }
 
 #[test]

@@ -664,7 +664,10 @@ impl Job {
             let ws = ws
                 .with_normalisers(centred.norm_in.clone(), centred.norm_out.clone())
                 .map_err(|e| e.to_string())?;
-            let tuned = fine_tune(&ws, &cfg, &centred, None).map_err(|e| e.to_string())?.model;
+            let mut tuned = fine_tune(&ws, &cfg, &centred, None).map_err(|e| e.to_string())?.model;
+            if self.cfg.interpolate < 1.0 {
+                interpolate_towards(&mut tuned.params, &centred.params, self.cfg.interpolate as f32);
+            }
             let (hws, ids) = holdout(m)?;
             let before = rmse_deg(m, &hws, &ids).map_err(|e| e.to_string())?;
             // The best of the two candidates on the hold-out (each under its own normalisation).
@@ -729,5 +732,32 @@ impl Job {
             new_fwd,
             new_inv,
         }
+    }
+}
+
+/// `tuned` ← θ₀ + α(θ − θ₀) with θ₀ = `base`, element by element: the fine-tune pulled back
+/// towards the weights it started from (WiSE-FT, Wortsman et al. 2022). Both come from the same
+/// network, so their parameter vectors have the same layout.
+fn interpolate_towards(tuned: &mut [f32], base: &[f32], alpha: f32) {
+    assert_eq!(tuned.len(), base.len(), "fine-tune and base of different networks");
+    for (p, p0) in tuned.iter_mut().zip(base) {
+        *p = p0 + alpha * (*p - p0);
+    }
+}
+
+#[cfg(test)]
+mod interpolation_tests {
+    use super::interpolate_towards;
+
+    #[test]
+    fn interpolation_moves_a_fraction_of_the_way_from_the_base() {
+        let base = [1.0f32, -2.0, 0.5, 0.0];
+        let tuned = [3.0f32, -2.0, -0.5, 8.0];
+        let mut quarter = tuned;
+        interpolate_towards(&mut quarter, &base, 0.25);
+        assert_eq!(quarter, [1.5, -2.0, 0.25, 2.0]);
+        let mut whole = tuned;
+        interpolate_towards(&mut whole, &base, 1.0);
+        assert_eq!(whole, tuned);
     }
 }

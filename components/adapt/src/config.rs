@@ -37,6 +37,9 @@ pub struct AdaptConfig {
     /// compensator sends, and without it a fine-tune is free to change the model everywhere
     /// else, where the refinement then searches.
     pub anchor: f64,
+    /// Weight-space interpolation of the fine-tune (WiSE-FT, Wortsman et al. 2022): the
+    /// candidate is θ₀ + α(θ_ft − θ₀) from the re-centred model θ₀; 1 = the fine-tune itself.
+    pub interpolate: f64,
     /// Which models are fine-tuned: "forward", "inverse" or both.
     pub directions: Vec<String>,
 }
@@ -58,6 +61,7 @@ impl Default for AdaptConfig {
             batch_size: 16,
             seed: 1,
             anchor: 0.0,
+            interpolate: 1.0,
             directions: vec!["forward".into(), "inverse".into()],
         }
     }
@@ -120,6 +124,9 @@ impl AdaptConfig {
         }
         if !(self.anchor >= 0.0 && self.anchor.is_finite()) {
             return Err(format!("[adapt] anchor = {}: must be ≥ 0", self.anchor));
+        }
+        if !(self.interpolate > 0.0 && self.interpolate <= 1.0) {
+            return Err(format!("[adapt] interpolate = {}: must be in (0, 1]", self.interpolate));
         }
         if self.directions.is_empty() {
             return Err("[adapt] directions: name forward, inverse or both".into());
