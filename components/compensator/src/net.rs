@@ -1454,7 +1454,7 @@ pub(crate) mod build {
     /// Conv weights from `w_oik[o][i][k]` (ONNX/PyTorch OIK layout).
     pub fn conv(src: NodeId, c_out: usize, c_in: usize, k: usize, dil: usize, w_oik: &[f32], bias: &[f32]) -> Node {
         let p = padded(c_out);
-        let mut w = vec![0.0f32; k * c_in * p];
+        let mut w = AVec::from_elem(0.0, k * c_in * p);
         for o in 0..c_out {
             for i in 0..c_in {
                 for kk in 0..k {
@@ -1462,7 +1462,7 @@ pub(crate) mod build {
                 }
             }
         }
-        let mut b = vec![0.0f32; p];
+        let mut b = AVec::from_elem(0.0, p);
         b[..c_out].copy_from_slice(bias);
         Node {
             op: Op::Conv {
@@ -1470,8 +1470,8 @@ pub(crate) mod build {
                 k,
                 dil,
                 c_in,
-                w: AVec::from_slice(&w),
-                b: AVec::from_slice(&b),
+                w,
+                b,
                 relu: false,
                 residual: None,
             },
@@ -1483,20 +1483,20 @@ pub(crate) mod build {
     /// Dense from `w_no[n][i]` (PyTorch Linear layout).
     pub fn dense(src: NodeId, n_out: usize, n_in: usize, w_ni: &[f32], bias: &[f32]) -> Node {
         let p = padded(n_out);
-        let mut w = vec![0.0f32; n_in * p];
+        let mut w = AVec::from_elem(0.0, n_in * p);
         for o in 0..n_out {
             for i in 0..n_in {
                 w[i * p + o] = w_ni[o * n_in + i];
             }
         }
-        let mut b = vec![0.0f32; p];
+        let mut b = AVec::from_elem(0.0, p);
         b[..n_out].copy_from_slice(bias);
         Node {
             op: Op::Dense {
                 src,
                 n_in,
-                w: AVec::from_slice(&w),
-                b: AVec::from_slice(&b),
+                w,
+                b,
                 relu: false,
             },
             seq: false,
@@ -1507,7 +1507,7 @@ pub(crate) mod build {
     /// Dense over the flattened window from `w[n][t][c]`.
     pub fn flatten_dense(src: NodeId, n_out: usize, l: usize, c_in: usize, w_ntc: &[f32], bias: &[f32]) -> Node {
         let p = padded(n_out);
-        let mut w = vec![0.0f32; l * c_in * p];
+        let mut w = AVec::from_elem(0.0, l * c_in * p);
         for o in 0..n_out {
             for t in 0..l {
                 for i in 0..c_in {
@@ -1515,15 +1515,10 @@ pub(crate) mod build {
                 }
             }
         }
-        let mut b = vec![0.0f32; p];
+        let mut b = AVec::from_elem(0.0, p);
         b[..n_out].copy_from_slice(bias);
         Node {
-            op: Op::FlattenDense {
-                src,
-                c_in,
-                w: AVec::from_slice(&w),
-                b: AVec::from_slice(&b),
-            },
+            op: Op::FlattenDense { src, c_in, w, b },
             seq: false,
             c: n_out,
         }
@@ -1532,8 +1527,8 @@ pub(crate) mod build {
     /// LSTM from ONNX `W[4H][I]`, `R[4H][H]`, `B[8H]` (gates i, o, f, c).
     pub fn lstm(src: NodeId, input: usize, hidden: usize, w_onnx: &[f32], r_onnx: &[f32], b_onnx: &[f32]) -> Node {
         let p = padded(hidden);
-        let mut wr = vec![0.0f32; (input + hidden) * 4 * p];
-        let mut b = vec![0.0f32; 4 * p];
+        let mut wr = AVec::from_elem(0.0, (input + hidden) * 4 * p);
+        let mut b = AVec::from_elem(0.0, 4 * p);
         for g in 0..4 {
             for h in 0..hidden {
                 let row = g * hidden + h;
@@ -1553,8 +1548,8 @@ pub(crate) mod build {
                 src,
                 input,
                 hidden,
-                wr: AVec::from_slice(&wr),
-                b: AVec::from_slice(&b),
+                wr,
+                b,
                 wb: AVec::from_slice(&wb),
             },
             seq: true,
