@@ -59,6 +59,7 @@ fn main() -> std::process::ExitCode {
     }
     // Before any thread and any Zenoh call: the bridge's network runtime layout (the user's
     // ZENOH_RUNTIME wins).
+    #[cfg(feature = "bridge")]
     bowden_bridge::use_bowden_zenoh_runtime();
     let cli = Cli::parse_from(legacy_json_file(std::env::args_os().collect()));
     let result = match cli.command {

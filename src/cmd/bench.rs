@@ -16,8 +16,15 @@ pub enum Command {
     Transfer(super::transfer::BenchCommand),
     #[command(flatten)]
     Swap(super::adapt::BenchCommand),
+    #[cfg(feature = "bridge")]
     #[command(flatten)]
     Bridge(super::bridge::BenchCommand),
+    /// One hop over the Zenoh bridge: needs a binary built with `--features bridge`.
+    #[cfg(not(feature = "bridge"))]
+    Bridge {
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true, hide = true)]
+        args: Vec<String>,
+    },
 }
 
 pub fn run(c: Command) -> anyhow::Result<()> {
@@ -28,6 +35,9 @@ pub fn run(c: Command) -> anyhow::Result<()> {
         Command::Learning(c) => super::learning::bench(c),
         Command::Transfer(c) => super::transfer::bench(c),
         Command::Swap(c) => super::adapt::bench(c),
+        #[cfg(feature = "bridge")]
         Command::Bridge(c) => super::bridge::bench(c),
+        #[cfg(not(feature = "bridge"))]
+        Command::Bridge { .. } => anyhow::bail!("bench bridge: {}", crate::nodes::NO_BRIDGE),
     }
 }

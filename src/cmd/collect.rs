@@ -27,13 +27,8 @@ pub struct CollectArgs {
     /// Plant file for the simulated robot (a second robot is a second file).
     #[arg(long)]
     pub plant: Option<PathBuf>,
-    /// Random configurations (eq. 16's endpoints). The default 8,000 with `mixed` gives about
-    /// 58,500 commands, ≈ 8 hours on a robot at 0.5 s per command (the paper's collection:
-    /// 1,802 eq. (16) configurations, 30,707 commands, 256 minutes): what an LSTM forward model
-    /// needs to be the controller's (1.1–1.4° against the TCN's 2.3–3.4°), the recipe of `bench
-    /// transfer`. 4,000 (≈ 29,400 commands, 245 minutes) is enough for the LSTM inverse with the
-    /// TCN forward model, 1,500 (≈ 11,000 commands, 92 minutes) the least that held up with the
-    /// TCN pair alone (docs/results/data-study/).
+    /// Random configurations (eq. 16's endpoints); each becomes several commands. How many a
+    /// recipe needs, and what fewer cost in tracking, is measured in docs/results/data-study/.
     #[arg(long, default_value_t = 8000)]
     pub samples: usize,
     /// Seed of the random configurations, the excitation's jumps and dither, and the run's noise.
@@ -51,9 +46,7 @@ pub struct CollectArgs {
     pub force: bool,
     /// `mixed` (default): eq. (16) with per-segment step multipliers 1–4 and dither up to ±20°,
     /// so the models also learn the jumps a compensator commands on reversals. `paper`: eq. (16)
-    /// exactly: models trained on it fit their validation data as well or better, yet under the
-    /// compensator they removed 28 % of the tip error where mixed data removed 60 % (mean over
-    /// three robots and three paths, docs/results/data-study/).
+    /// exactly. How models trained on each track: docs/results/data-study/.
     #[arg(long, default_value = "mixed", value_parser = super::choice(&["paper", "mixed"]), ignore_case = true)]
     pub excitation: String,
     /// Collect under the compensator: the excitation's commands become *targets*, compensated

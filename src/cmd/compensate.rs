@@ -253,8 +253,7 @@ fn split_names(s: &str) -> Vec<String> {
 }
 
 /// Reads targets whose joint columns are `names` (q1..qJ in order, matched exactly as
-/// `bowden import` matches them): the header is renamed to q1..qJ and read as usual, with
-/// errors naming the file's own columns.
+/// `bowden import` matches them); errors name the file's own columns.
 fn read_targets_named(path: &Path, names: &[String], joints: usize) -> anyhow::Result<Vec<Vec<f64>>> {
     if names.len() != joints {
         bail!(
@@ -268,50 +267,8 @@ fn read_targets_named(path: &Path, names: &[String], joints: usize) -> anyhow::R
             bail!("--cols: column {n:?} is named twice");
         }
     }
-    let file = path.display().to_string();
-    let text = std::fs::read_to_string(path).with_context(|| format!("{file}: cannot read"))?;
-    let mut renamed = String::with_capacity(text.len());
-    let mut header_done = false;
-    for line in text.lines() {
-        let l = line.trim();
-        if header_done || l.is_empty() || l.starts_with('#') {
-            renamed.push_str(line);
-        } else {
-            header_done = true;
-            let header: Vec<String> = l
-                .trim_start_matches('\u{feff}')
-                .split(',')
-                .map(|f| f.trim().trim_matches('"').to_string())
-                .collect();
-            let mut new: Vec<String> = (0..header.len()).map(|i| format!("-{i}")).collect();
-            for (k, n) in names.iter().enumerate() {
-                let i = header.iter().position(|h| h == n).with_context(|| {
-                    format!("{file}: --cols: no column {n:?} (the header has: {})", header.join(","))
-                })?;
-                new[i] = format!("q{}", k + 1);
-            }
-            renamed.push_str(&new.join(","));
-        }
-        renamed.push('\n');
-    }
-    offline::parse_targets_csv(&renamed, &file, joints).map_err(|e| match e {
-        offline::TargetsError::BadValue {
-            path,
-            line,
-            column,
-            value,
-        } => {
-            let k: usize = column.trim_start_matches('q').parse().unwrap_or(1);
-            offline::TargetsError::BadValue {
-                path,
-                line,
-                column: names.get(k.wrapping_sub(1)).cloned().unwrap_or(column),
-                value,
-            }
-            .into()
-        }
-        e => anyhow::Error::from(e),
-    })
+    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    offline::parse_targets_csv(&bytes, path, names, false).context("--cols")
 }
 
 /// Whether `others` is a proper, non-empty subset of the `n` CPUs (--cpu was given).

@@ -2,6 +2,7 @@
 
 pub mod adapt;
 pub mod bench;
+#[cfg(feature = "bridge")]
 pub mod bridge;
 pub mod camera;
 pub mod collect;

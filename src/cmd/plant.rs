@@ -4,6 +4,7 @@
 use anyhow::{bail, Context, Result};
 use bowden_kinematics::{JointsDeg, Robot, N_JOINTS};
 use bowden_plant::{characterize, CharacterizeOptions, Plant, PlantConfig};
+use bowden_tables::{ReadOptions, Table};
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::io::Write;
@@ -182,45 +183,26 @@ fn run_characterize(a: CharacterizeArgs) -> Result<()> {
     Ok(())
 }
 
-/// Columns `names` of a CSV with a header (case-insensitive), as rows of 5 values; `None` when
-/// the header lacks any of them. Errors name the file, line and column.
-fn read_columns(text: &str, file: &Path, names: &[String]) -> Result<Option<Vec<JointsDeg>>> {
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .map(|(i, l)| (i + 1, l.trim()))
-        .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
-    let Some((_, header)) = lines.next() else {
-        bail!("{}: empty file (expected a header line)", file.display());
+/// A command or target file: a CSV with a header (names compared ignoring case, `#` lines
+/// skipped).
+fn read_table(file: &Path) -> Result<Table> {
+    let opts = ReadOptions {
+        header: true,
+        comments: true,
+        ignore_case: true,
     };
-    let cols: Vec<String> = header.split(',').map(|c| c.trim().to_lowercase()).collect();
-    let Some(idx) = names
-        .iter()
-        .map(|n| cols.iter().position(|c| c == n))
-        .collect::<Option<Vec<usize>>>()
-    else {
+    Ok(Table::read(file, opts)?)
+}
+
+/// Columns `names` of the table, as rows of 5 finite values; `None` when the header lacks any
+/// of them. Errors name the file, line and column.
+fn read_columns(table: &Table, names: &[String]) -> Result<Option<Vec<JointsDeg>>> {
+    let Ok(cols) = table.columns(names) else {
         return Ok(None);
     };
-    let mut rows = Vec::new();
-    for (line, l) in lines {
-        let f: Vec<&str> = l.split(',').collect();
-        let mut q = [0.0; N_JOINTS];
-        for (j, &i) in idx.iter().enumerate() {
-            let cell = f.get(i).map(|c| c.trim()).unwrap_or("");
-            q[j] = cell.parse::<f64>().ok().filter(|v| v.is_finite()).with_context(|| {
-                format!(
-                    "{}:{line}: column {}: not a finite number: {cell:?}",
-                    file.display(),
-                    names[j]
-                )
-            })?;
-        }
-        rows.push(q);
-    }
-    if rows.is_empty() {
-        bail!("{}: no data rows", file.display());
-    }
-    Ok(Some(rows))
+    table.require_rows("data rows")?;
+    let rows = table.finite_rows(&cols)?;
+    Ok(Some(rows.iter().map(|r| core::array::from_fn(|j| r[j])).collect()))
 }
 
 fn joint_cols(prefix: &str) -> Vec<String> {
@@ -257,10 +239,10 @@ fn run_play(a: PlayArgs) -> Result<()> {
         "--approach-hold-s {}: need a non-negative number of seconds",
         a.approach_hold_s
     );
-    let text = std::fs::read_to_string(&a.commands).with_context(|| format!("reading {}", a.commands.display()))?;
-    let (commands, own_targets) = match read_columns(&text, &a.commands, &joint_cols("q_cmd_"))? {
-        Some(c) => (c, read_columns(&text, &a.commands, &joint_cols("q_des_"))?),
-        None => match read_columns(&text, &a.commands, &joint_cols("q"))? {
+    let table = read_table(&a.commands)?;
+    let (commands, own_targets) = match read_columns(&table, &joint_cols("q_cmd_"))? {
+        Some(c) => (c, read_columns(&table, &joint_cols("q_des_"))?),
+        None => match read_columns(&table, &joint_cols("q"))? {
             Some(c) => (c, None),
             None => bail!(
                 "{}: no command columns: need q_cmd_1..q_cmd_5 (`bowden compensate` output) or q1..q5",
@@ -270,10 +252,10 @@ fn run_play(a: PlayArgs) -> Result<()> {
     };
     let targets = match &a.targets {
         Some(p) => {
-            let t = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-            match read_columns(&t, p, &joint_cols("q_des_"))? {
+            let t = read_table(p)?;
+            match read_columns(&t, &joint_cols("q_des_"))? {
                 Some(r) => r,
-                None => read_columns(&t, p, &joint_cols("q"))?
+                None => read_columns(&t, &joint_cols("q"))?
                     .with_context(|| format!("{}: no target columns: need q1..q5 or q_des_1..q_des_5", p.display()))?,
             }
         }

@@ -18,6 +18,11 @@ use bowden_runtime::stage::{Stage, StageBuildError, StageEnv};
 #[global_allocator]
 static ALLOC: bowden_runtime::alloc::RtAlloc = bowden_runtime::alloc::RtAlloc;
 
+/// Why a `bridge` stage cannot run in a binary built without the `bridge` feature.
+#[cfg(not(feature = "bridge"))]
+pub const NO_BRIDGE: &str = "this bowden was built without the Zenoh bridge: rebuild with \
+     `cargo build --release --features bridge` (or `cargo install --path . --features bridge`)";
+
 /// Builds the stage of `env.spec.kind` (the runtime builds the recorder itself).
 pub fn factory(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
     match env.spec.kind.as_str() {
@@ -28,7 +33,10 @@ pub fn factory(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         "camera" => camera::build(env),
         "estimator" => estimator::build(env),
         "adapt" => adapt::build(env),
+        #[cfg(feature = "bridge")]
         "bridge" => Ok(Box::new(bowden_bridge::BridgeStage::from_env(env)?)),
+        #[cfg(not(feature = "bridge"))]
+        "bridge" => Err(env.error(NO_BRIDGE)),
         other => Err(env.error(format!("no built-in node of kind `{other}`"))),
     }
 }

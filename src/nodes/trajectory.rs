@@ -4,6 +4,7 @@
 use bowden_interfaces::{services, JointTarget};
 use bowden_runtime::ports::Output;
 use bowden_runtime::stage::{Stage, StageBuildError, StageEnv, StageError, StepCx, StepReport};
+use bowden_tables::{ReadOptions, Table};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
@@ -36,35 +37,38 @@ fn yes() -> bool {
     true
 }
 
-/// Reads a CSV of joint commands; errors name the file and line.
+/// Reads a CSV of joint commands, five values a row (q1..q5, degrees), with an optional header
+/// line before the first; errors name the file, line and column.
 pub fn read_csv(path: &Path) -> Result<Vec<[f64; 5]>, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
-    let mut out = Vec::new();
-    for (i, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-        let parsed: Result<Vec<f64>, _> = fields.iter().map(|f| f.parse::<f64>()).collect();
-        let values = match parsed {
-            Ok(v) => v,
-            // A header line (q1,q2,...) is allowed before the first command.
-            Err(_) if out.is_empty() && fields.iter().all(|f| f.parse::<f64>().is_err()) => continue,
-            Err(e) => return Err(format!("{}:{}: `{line}`: {e}", path.display(), i + 1)),
-        };
-        if values.len() != 5 {
+    let opts = ReadOptions {
+        header: false,
+        comments: true,
+        ignore_case: false,
+    };
+    let table = Table::read(path, opts).map_err(|e| e.to_string())?;
+    // A header line (q1,q2,...) is allowed before the first command: a first row without a
+    // single number in it.
+    let first_is_header = table
+        .rows
+        .first()
+        .is_some_and(|r| r.fields.iter().all(|f| f.parse::<f64>().is_err()));
+    let skip = usize::from(first_is_header);
+    let mut out = Vec::with_capacity(table.rows.len());
+    for r in skip..table.rows.len() {
+        let fields = &table.rows[r].fields;
+        if fields.len() != 5 {
             return Err(format!(
                 "{}:{}: {} values, expected 5 (q1..q5)",
                 path.display(),
-                i + 1,
-                values.len()
+                table.rows[r].line,
+                fields.len()
             ));
         }
-        if let Some(j) = values.iter().position(|v| !v.is_finite()) {
-            return Err(format!("{}:{}: q{} is not finite", path.display(), i + 1, j + 1));
+        let mut q = [0.0; 5];
+        for (j, v) in q.iter_mut().enumerate() {
+            *v = table.finite(r, j).map_err(|e| e.to_string())?;
         }
-        out.push(core::array::from_fn(|j| values[j]));
+        out.push(q);
     }
     if out.is_empty() {
         return Err(format!("{}: no commands", path.display()));

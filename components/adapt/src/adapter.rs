@@ -6,6 +6,7 @@ use bowden_interfaces::fnv1a64;
 use bowden_learning::{
     fine_tune, mean_residual_deg, rmse_deg, Dataset, Direction, ModelFile, PhySource, TrainConfig, WindowSet,
 };
+use bowden_tables::{ReadOptions, Table, TableError, TableWriter};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
@@ -16,6 +17,9 @@ pub enum AdaptError {
     File { path: PathBuf, message: String },
     #[error("{0}")]
     Config(String),
+    /// The saved rows: unreadable, malformed or not numbers (file:line:column).
+    #[error(transparent)]
+    Table(#[from] TableError),
 }
 
 fn file_err(path: &Path, e: impl std::fmt::Display) -> AdaptError {
@@ -448,22 +452,17 @@ impl Adapter {
             "state.json",
             serde_json::to_string_pretty(&self.state).map_err(|e| file_err(&self.dir, e))?,
         )?;
-        let mut csv = String::from("tick");
+        let mut header = vec!["tick".to_string()];
         for side in ["cmd", "phy"] {
-            for k in 0..self.joints() {
-                csv.push_str(&format!(",q{}_{side}_deg", k + 1));
-            }
+            header.extend((1..=self.joints()).map(|k| format!("q{k}_{side}_deg")));
         }
-        csv.push('\n');
+        let mut csv = TableWriter::new(&header);
         for r in &self.rows {
-            csv.push_str(&r.tick.to_string());
-            for v in r.q_cmd_deg.iter().chain(&r.q_phy_deg) {
-                // `{:?}` prints the shortest text that reads back to the same f64.
-                csv.push_str(&format!(",{v:?}"));
-            }
-            csv.push('\n');
+            // `{:?}` prints the shortest text that reads back to the same f64.
+            let angles = r.q_cmd_deg.iter().chain(&r.q_phy_deg).map(|v| format!("{v:?}"));
+            csv.row(std::iter::once(r.tick.to_string()).chain(angles));
         }
-        write("rows.csv", csv)
+        write("rows.csv", csv.into_string())
     }
 
     fn load_rows(&mut self) -> Result<(), AdaptError> {
@@ -471,23 +470,31 @@ impl Adapter {
         if !p.exists() {
             return Ok(());
         }
-        let text = std::fs::read_to_string(&p).map_err(|e| file_err(&p, e))?;
+        let table = Table::read(&p, ReadOptions::default())?;
         let j = self.joints();
-        for (i, line) in text.lines().enumerate().skip(1) {
-            let v: Vec<&str> = line.split(',').collect();
-            let bad = || file_err(&p, format!("line {}: expected tick and {} angles", i + 1, 2 * j));
-            if v.len() != 1 + 2 * j {
-                return Err(bad());
-            }
-            let tick: u64 = v[0].parse().map_err(|_| bad())?;
-            let q: Vec<f64> = v[1..]
-                .iter()
-                .map(|s| s.parse::<f64>())
-                .collect::<Result<_, _>>()
-                .map_err(|_| bad())?;
-            if !q.iter().all(|x| x.is_finite()) {
-                return Err(bad());
-            }
+        if table.header.len() != 1 + 2 * j {
+            return Err(file_err(
+                &p,
+                format!("{} columns, expected tick and {} angles", table.header.len(), 2 * j),
+            ));
+        }
+        let angle_cols: Vec<usize> = (1..=2 * j).collect();
+        let angles = table.finite_rows(&angle_cols)?;
+        for (r, q) in angles.into_iter().enumerate() {
+            let tick = table
+                .i64(r, 0)
+                .ok()
+                .and_then(|t| u64::try_from(t).ok())
+                .ok_or_else(|| {
+                    file_err(
+                        &p,
+                        format!(
+                            "line {}: tick {:?} is not a count",
+                            table.rows[r].line,
+                            table.text(r, 0)
+                        ),
+                    )
+                })?;
             self.rows.push_back(Row {
                 tick,
                 q_cmd_deg: q[..j].to_vec(),

@@ -211,7 +211,7 @@ impl SafetyConfig {
             support: true,
             support_scale: 1.0,
             // The largest training step itself. On poor models with eq. (16)-spaced targets
-            // (`tests/safe_refinement.rs`, `safety_variants_on_poor_models`) 3× costs less of
+            // (`tests/it/safe_refinement.rs`, `safety_variants_on_poor_models`) 3× costs less of
             // the gain, but in the vision loop on the test paths 3× let newton track worse than
             // uncalibrated (random path −3.5 % position, −28 % orientation) where 1× stayed
             // better on every path (docs/results/paper-protocol/).

@@ -1,110 +1,55 @@
 //! Offline compensation of a target file (`bowden compensate`): CSV in, CSV out.
 
 use crate::compensator::{Compensator, StepOutput};
+use bowden_tables::{ReadOptions, Table, TableError};
 use std::io::Write;
 use std::path::Path;
 
 /// A bad target file: which file, line and column.
 #[derive(Debug, thiserror::Error)]
 pub enum TargetsError {
-    #[error("{path}: cannot read: {source}")]
-    Io {
-        path: String,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("{path}: empty file (expected a header with columns q1..q{joints})")]
-    Empty { path: String, joints: usize },
-    #[error("{path}: header has no column `{column}` (expected q1..q{joints}, found: {header})")]
-    MissingColumn {
-        path: String,
-        column: String,
-        joints: usize,
-        header: String,
-    },
-    #[error("{path}:{line}: column `{column}` = {value:?} is not a finite number")]
-    BadValue {
-        path: String,
-        line: usize,
-        column: String,
-        value: String,
-    },
-    #[error("{path}:{line}: {found} fields, the header has {expected}")]
-    FieldCount {
-        path: String,
-        line: usize,
-        found: usize,
-        expected: usize,
-    },
+    /// Unreadable or malformed CSV, a missing column, a field that is not a finite number.
+    #[error(transparent)]
+    Table(#[from] TableError),
     #[error("{path}: no targets after the header")]
     NoRows { path: String },
 }
 
-/// Reads targets from a CSV file with a header naming columns `q1..qJ` (degrees; other
-/// columns are ignored; `#` lines and blank lines are skipped).
-pub fn read_targets_csv(path: &Path, joints: usize) -> Result<Vec<Vec<f64>>, TargetsError> {
-    let name = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|source| TargetsError::Io {
-        path: name.clone(),
-        source,
-    })?;
-    parse_targets_csv(&text, &name, joints)
+/// The joint columns a target file has by default: `q1..qJ`.
+pub fn default_columns(joints: usize) -> Vec<String> {
+    (1..=joints).map(|k| format!("q{k}")).collect()
 }
 
-pub fn parse_targets_csv(text: &str, name: &str, joints: usize) -> Result<Vec<Vec<f64>>, TargetsError> {
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .map(|(i, l)| (i + 1, l.trim()))
-        .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
-    let (_, header) = lines.next().ok_or_else(|| TargetsError::Empty {
-        path: name.to_string(),
-        joints,
+/// Reads targets from a CSV file with a header naming the joint columns `q1..qJ` (degrees,
+/// any case; other columns are ignored; `#` lines and blank lines are skipped).
+pub fn read_targets_csv(path: &Path, joints: usize) -> Result<Vec<Vec<f64>>, TargetsError> {
+    let bytes = std::fs::read(path).map_err(|source| TableError::Io {
+        path: path.to_path_buf(),
+        source,
     })?;
-    let cols: Vec<String> = header.split(',').map(|c| c.trim().to_lowercase()).collect();
-    let mut idx = Vec::with_capacity(joints);
-    for c in 1..=joints {
-        let want = format!("q{c}");
-        let i = cols
-            .iter()
-            .position(|h| *h == want)
-            .ok_or_else(|| TargetsError::MissingColumn {
-                path: name.to_string(),
-                column: want.clone(),
-                joints,
-                header: header.to_string(),
-            })?;
-        idx.push(i);
-    }
-    let mut rows = Vec::new();
-    for (line, l) in lines {
-        let fields: Vec<&str> = l.split(',').map(|f| f.trim()).collect();
-        if fields.len() != cols.len() {
-            return Err(TargetsError::FieldCount {
-                path: name.to_string(),
-                line,
-                found: fields.len(),
-                expected: cols.len(),
-            });
-        }
-        let mut row = Vec::with_capacity(joints);
-        for (c, &i) in idx.iter().enumerate() {
-            match fields[i].parse::<f64>() {
-                Ok(v) if v.is_finite() => row.push(v),
-                _ => {
-                    return Err(TargetsError::BadValue {
-                        path: name.to_string(),
-                        line,
-                        column: format!("q{}", c + 1),
-                        value: fields[i].to_string(),
-                    })
-                }
-            }
-        }
-        rows.push(row);
-    }
+    parse_targets_csv(&bytes, path, &default_columns(joints), true)
+}
+
+/// Targets from CSV bytes: the columns `names` in joint order (compared ignoring case when
+/// `ignore_case`), every value finite. `path` names the bytes in errors.
+pub fn parse_targets_csv(
+    bytes: &[u8],
+    path: &Path,
+    names: &[String],
+    ignore_case: bool,
+) -> Result<Vec<Vec<f64>>, TargetsError> {
+    let opts = ReadOptions {
+        header: true,
+        comments: true,
+        ignore_case,
+    };
+    let table = Table::parse(bytes, path, opts)?;
+    let cols = table.columns(names)?;
+    let rows = table.finite_rows(&cols)?;
     if rows.is_empty() {
-        return Err(TargetsError::NoRows { path: name.to_string() });
+        return Err(TargetsError::NoRows {
+            path: path.display().to_string(),
+        });
     }
     Ok(rows)
 }
@@ -205,28 +150,27 @@ pub fn summarize(outs: &[StepOutput]) -> OfflineSummary {
 mod tests {
     use super::*;
 
+    fn parse(text: &str, name: &str) -> Result<Vec<Vec<f64>>, TargetsError> {
+        parse_targets_csv(text.as_bytes(), Path::new(name), &default_columns(2), true)
+    }
+
     #[test]
     fn csv_errors_name_line_and_column() {
-        let ok = "t_ns,q1,q2\n# comment\n0,1.5,2\n\n1,3,-4e1\n";
-        assert_eq!(
-            parse_targets_csv(ok, "a.csv", 2).unwrap(),
-            vec![vec![1.5, 2.0], vec![3.0, -40.0]]
-        );
-        let e = parse_targets_csv("q1,q3\n1,2\n", "b.csv", 2).unwrap_err().to_string();
-        assert!(e.contains("b.csv") && e.contains("`q2`"), "{e}");
-        let e = parse_targets_csv("q1,q2\n1,2\n1,NaN\n", "c.csv", 2)
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("c.csv:3") && e.contains("q2") && e.contains("NaN"), "{e}");
-        let e = parse_targets_csv("q1,q2\n1\n", "d.csv", 2).unwrap_err().to_string();
+        let ok = "t_ns,Q1,q2\n# comment\n0,1.5,2\n\n1,3,-4e1\n";
+        assert_eq!(parse(ok, "a.csv").unwrap(), vec![vec![1.5, 2.0], vec![3.0, -40.0]]);
+        let e = parse("q1,q3\n1,2\n", "b.csv").unwrap_err().to_string();
+        assert!(e.contains("b.csv") && e.contains("\"q2\""), "{e}");
+        let e = parse("q1,q2\n1,2\n1,NaN\n", "c.csv").unwrap_err().to_string();
+        assert!(e.contains("c.csv:3:2 (q2)") && e.contains("NaN"), "{e}");
+        let e = parse("q1,q2\n1\n", "d.csv").unwrap_err().to_string();
         assert!(e.contains("d.csv:2") && e.contains("1 fields"), "{e}");
         assert!(matches!(
-            parse_targets_csv("", "e.csv", 2),
-            Err(TargetsError::Empty { .. })
+            parse("", "e.csv"),
+            Err(TargetsError::Table(TableError::Empty { .. }))
         ));
-        assert!(matches!(
-            parse_targets_csv("q1,q2\n", "f.csv", 2),
-            Err(TargetsError::NoRows { .. })
-        ));
+        assert!(matches!(parse("q1,q2\n", "f.csv"), Err(TargetsError::NoRows { .. })));
+        // A quoted field with a comma in another column, CRLF and a byte-order mark.
+        let rig = "\u{feff}note,q1,q2\r\n\"left, then up\",1,2\r\n";
+        assert_eq!(parse(rig, "g.csv").unwrap(), vec![vec![1.0, 2.0]]);
     }
 }

@@ -12,8 +12,9 @@
 //! sequence stays contiguous, which the windows of the sequence models need.
 
 use serde::{Deserialize, Serialize};
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
+
+use bowden_tables::{ReadOptions, Table, TableError, TableWriter};
 
 use crate::npy::{self, NpyError};
 
@@ -38,21 +39,10 @@ pub enum DatasetError {
         #[source]
         source: serde_json::Error,
     },
-    #[error("{path}:{line}: {what}")]
-    Csv { path: PathBuf, line: usize, what: String },
-    #[error("{path}: no column {column:?} (the header has: {available})")]
-    MissingColumn {
-        path: PathBuf,
-        column: String,
-        available: String,
-    },
-    #[error("{path}:{line}: column {column:?} = {value:?} is not a number")]
-    NotANumber {
-        path: PathBuf,
-        line: usize,
-        column: String,
-        value: String,
-    },
+    /// The CSV itself: unreadable, malformed, a missing column or a field that is not a
+    /// number (with file:line:column).
+    #[error(transparent)]
+    Table(#[from] TableError),
     #[error("{path}: row {row}, column {column:?}: {value} is not finite; commands must be known for every sample")]
     NotFinite {
         path: PathBuf,
@@ -233,32 +223,22 @@ impl Dataset {
     /// The CSV text. Floats use Rust's shortest round-trip form, so a written dataset reads
     /// back bit for bit and the same data always gives the same bytes.
     pub fn to_csv(&self) -> String {
-        let mut s = self.columns().join(",");
-        s.push('\n');
+        let mut csv = TableWriter::new(&self.columns());
         let j = self.joints;
+        let mut fields: Vec<String> = Vec::with_capacity(self.columns().len());
+        let number = |v: f64| if v.is_nan() { "NaN".to_string() } else { v.to_string() };
         for i in 0..self.len() {
-            let _ = write!(s, "{}", self.t_ns[i]);
-            let mut push = |v: f64| {
-                if v.is_nan() {
-                    s.push_str(",NaN");
-                } else {
-                    let _ = write!(s, ",{v}");
-                }
-            };
-            for k in 0..j {
-                push(self.q_cmd_deg[i * j + k]);
-            }
-            for k in 0..j {
-                push(self.q_phy_deg[i * j + k]);
-            }
+            fields.clear();
+            fields.push(self.t_ns[i].to_string());
+            fields.extend(self.q_cmd_deg[i * j..(i + 1) * j].iter().map(|&v| number(v)));
+            fields.extend(self.q_phy_deg[i * j..(i + 1) * j].iter().map(|&v| number(v)));
             if let Some(t) = &self.q_true_deg {
-                for k in 0..j {
-                    push(t[i * j + k]);
-                }
+                fields.extend(t[i * j..(i + 1) * j].iter().map(|&v| number(v)));
             }
-            s.push_str(if self.valid[i] { ",1\n" } else { ",0\n" });
+            fields.push(if self.valid[i] { "1" } else { "0" }.to_string());
+            csv.row(&fields);
         }
-        s
+        csv.into_string()
     }
 
     /// Writes `dataset.csv` and `manifest.json` into `dir` (created if needed).
@@ -331,14 +311,9 @@ impl Dataset {
                 what: format!("FNV-1a {hash} ≠ manifest {}", manifest.csv_fnv1a64),
             });
         }
-        let text = String::from_utf8(bytes).map_err(|e| DatasetError::Csv {
-            path: csv_path.clone(),
-            line: 0,
-            what: format!("not UTF-8: {e}"),
-        })?;
-        let table = CsvTable::parse(&text, &csv_path)?;
+        let table = Table::parse(&bytes, &csv_path, ReadOptions::default())?;
         let opts = ImportOptions::default();
-        let ds = table.to_dataset(&opts, &csv_path)?;
+        let ds = to_dataset(&table, &opts)?;
         if ds.joints != manifest.joints || ds.len() != manifest.samples || ds.q_true_deg.is_some() != manifest.has_truth
         {
             return Err(DatasetError::Manifest {
@@ -447,196 +422,95 @@ impl ImportOptions {
     }
 }
 
-/// A parsed CSV: header and rows of raw fields.
-struct CsvTable {
-    header: Vec<String>,
-    /// (line number, fields)
-    rows: Vec<(usize, Vec<String>)>,
-}
-
-impl CsvTable {
-    fn parse(text: &str, path: &Path) -> Result<Self, DatasetError> {
-        let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
-        let (_, head) = lines.next().ok_or_else(|| DatasetError::Csv {
+/// The dataset in a table with named columns (a written dataset or an imported log).
+fn to_dataset(table: &Table, opts: &ImportOptions) -> Result<Dataset, DatasetError> {
+    let path = table.path.as_path();
+    let named = |list: &Option<Vec<String>>, prefix: &str| -> Result<Vec<usize>, DatasetError> {
+        let names = match list {
+            Some(l) => l.clone(),
+            None => table.numbered(&format!("{prefix}_")),
+        };
+        if names.is_empty() {
+            // Names the first column the default layout expects.
+            table.column(&format!("{prefix}_1"))?;
+        }
+        Ok(table.columns(&names)?)
+    };
+    let cmd_cols = named(&opts.cmd_columns, "q_cmd")?;
+    let phy_cols = named(&opts.phy_columns, "q_phy")?;
+    if cmd_cols.len() != phy_cols.len() {
+        return Err(DatasetError::Shape {
             path: path.to_path_buf(),
-            line: 1,
-            what: "empty file (no header)".into(),
-        })?;
-        let header: Vec<String> = split_fields(head.trim_start_matches('\u{feff}'));
-        for (i, h) in header.iter().enumerate() {
-            if header[..i].contains(h) {
-                return Err(DatasetError::Csv {
-                    path: path.to_path_buf(),
-                    line: 1,
-                    what: format!("column {h:?} appears twice in the header"),
-                });
+            what: format!(
+                "{} command columns but {} measured columns",
+                cmd_cols.len(),
+                phy_cols.len()
+            ),
+        });
+    }
+    let true_names = table.numbered("q_true_");
+    let true_cols = if opts.cmd_columns.is_none() && true_names.len() == cmd_cols.len() {
+        Some(table.columns(&true_names)?)
+    } else {
+        None
+    };
+    let time_col = match &opts.time_column {
+        Some(n) => Some(table.column(n)?),
+        None => table.find("t_ns"),
+    };
+    let valid_col = match &opts.valid_column {
+        Some(n) => Some(table.column(n)?),
+        None => table.find("valid"),
+    };
+    let sel = opts.select(cmd_cols.len())?;
+    let scale = opts.scale();
+    let n = table.rows.len();
+    let j = sel.len();
+    let mut ds = Dataset {
+        joints: j,
+        t_ns: Vec::with_capacity(n),
+        q_cmd_deg: Vec::with_capacity(n * j),
+        q_phy_deg: Vec::with_capacity(n * j),
+        q_true_deg: true_cols.as_ref().map(|_| Vec::with_capacity(n * j)),
+        valid: Vec::with_capacity(n),
+    };
+    for r in 0..n {
+        let t = match time_col {
+            Some(c) => table.i64(r, c)?,
+            None => r as i64 * opts.period_ns,
+        };
+        ds.t_ns.push(t);
+        let mut ok = match valid_col {
+            Some(c) => {
+                let v = table.f64_or_nan(r, c)?;
+                v.is_finite() && v != 0.0
             }
-        }
-        let mut rows = Vec::new();
-        for (i, line) in lines {
-            let fields = split_fields(line);
-            if fields.len() != header.len() {
-                return Err(DatasetError::Csv {
-                    path: path.to_path_buf(),
-                    line: i + 1,
-                    what: format!("{} fields, the header has {}", fields.len(), header.len()),
-                });
-            }
-            rows.push((i + 1, fields));
-        }
-        Ok(Self { header, rows })
-    }
-
-    fn column(&self, name: &str, path: &Path) -> Result<usize, DatasetError> {
-        self.header
-            .iter()
-            .position(|h| h == name)
-            .ok_or_else(|| DatasetError::MissingColumn {
-                path: path.to_path_buf(),
-                column: name.to_string(),
-                available: self.header.join(","),
-            })
-    }
-
-    /// Columns `<prefix>_1, <prefix>_2, ...` in index order (contiguous from 1).
-    fn prefixed(&self, prefix: &str) -> Vec<String> {
-        let mut k = 1;
-        let mut out = Vec::new();
-        while self.header.iter().any(|h| *h == format!("{prefix}_{k}")) {
-            out.push(format!("{prefix}_{k}"));
-            k += 1;
-        }
-        out
-    }
-
-    fn number(&self, row: usize, col: usize, path: &Path) -> Result<f64, DatasetError> {
-        let (line, fields) = &self.rows[row];
-        let s = fields[col].as_str();
-        match s {
-            "" | "nan" | "NaN" | "NAN" => Ok(f64::NAN),
-            _ => s.parse::<f64>().map_err(|_| DatasetError::NotANumber {
-                path: path.to_path_buf(),
-                line: *line,
-                column: self.header[col].clone(),
-                value: s.to_string(),
-            }),
-        }
-    }
-
-    fn to_dataset(&self, opts: &ImportOptions, path: &Path) -> Result<Dataset, DatasetError> {
-        let named = |list: &Option<Vec<String>>, prefix: &str| -> Result<Vec<usize>, DatasetError> {
-            let names = match list {
-                Some(l) => l.clone(),
-                None => self.prefixed(prefix),
-            };
-            if names.is_empty() {
-                return Err(DatasetError::MissingColumn {
-                    path: path.to_path_buf(),
-                    column: format!("{prefix}_1"),
-                    available: self.header.join(","),
-                });
-            }
-            names.iter().map(|n| self.column(n, path)).collect()
+            None => true,
         };
-        let cmd_cols = named(&opts.cmd_columns, "q_cmd")?;
-        let phy_cols = named(&opts.phy_columns, "q_phy")?;
-        if cmd_cols.len() != phy_cols.len() {
-            return Err(DatasetError::Shape {
-                path: path.to_path_buf(),
-                what: format!(
-                    "{} command columns but {} measured columns",
-                    cmd_cols.len(),
-                    phy_cols.len()
-                ),
-            });
+        for &k in &sel {
+            ds.q_cmd_deg.push(table.f64_or_nan(r, cmd_cols[k])? * scale);
         }
-        let true_names = self.prefixed("q_true");
-        let true_cols = if opts.cmd_columns.is_none() && true_names.len() == cmd_cols.len() {
-            Some(
-                true_names
-                    .iter()
-                    .map(|n| self.column(n, path))
-                    .collect::<Result<Vec<_>, _>>()?,
-            )
-        } else {
-            None
-        };
-        let time_col = match &opts.time_column {
-            Some(n) => Some(self.column(n, path)?),
-            None => self.header.iter().position(|h| h == "t_ns"),
-        };
-        let valid_col = match &opts.valid_column {
-            Some(n) => Some(self.column(n, path)?),
-            None => self.header.iter().position(|h| h == "valid"),
-        };
-        let sel = opts.select(cmd_cols.len())?;
-        let scale = opts.scale();
-        let n = self.rows.len();
-        let j = sel.len();
-        let mut ds = Dataset {
-            joints: j,
-            t_ns: Vec::with_capacity(n),
-            q_cmd_deg: Vec::with_capacity(n * j),
-            q_phy_deg: Vec::with_capacity(n * j),
-            q_true_deg: true_cols.as_ref().map(|_| Vec::with_capacity(n * j)),
-            valid: Vec::with_capacity(n),
-        };
-        for r in 0..n {
-            let t = match time_col {
-                Some(c) => {
-                    let (line, fields) = &self.rows[r];
-                    fields[c].parse::<i64>().map_err(|_| DatasetError::NotANumber {
-                        path: path.to_path_buf(),
-                        line: *line,
-                        column: self.header[c].clone(),
-                        value: fields[c].clone(),
-                    })?
-                }
-                None => r as i64 * opts.period_ns,
-            };
-            ds.t_ns.push(t);
-            let mut ok = match valid_col {
-                Some(c) => {
-                    let v = self.number(r, c, path)?;
-                    v.is_finite() && v != 0.0
-                }
-                None => true,
-            };
+        for &k in &sel {
+            let v = table.f64_or_nan(r, phy_cols[k])? * scale;
+            // A missing measurement in a log marks the sample invalid; it is kept.
+            ok &= v.is_finite();
+            ds.q_phy_deg.push(v);
+        }
+        if let (Some(cols), Some(out)) = (&true_cols, ds.q_true_deg.as_mut()) {
             for &k in &sel {
-                ds.q_cmd_deg.push(self.number(r, cmd_cols[k], path)? * scale);
+                out.push(table.f64_or_nan(r, cols[k])? * scale);
             }
-            for &k in &sel {
-                let v = self.number(r, phy_cols[k], path)? * scale;
-                // A missing measurement in a log marks the sample invalid; it is kept.
-                ok &= v.is_finite();
-                ds.q_phy_deg.push(v);
-            }
-            if let (Some(cols), Some(out)) = (&true_cols, ds.q_true_deg.as_mut()) {
-                for &k in &sel {
-                    out.push(self.number(r, cols[k], path)? * scale);
-                }
-            }
-            ds.valid.push(ok);
         }
-        ds.validate(path)?;
-        Ok(ds)
+        ds.valid.push(ok);
     }
-}
-
-fn split_fields(line: &str) -> Vec<String> {
-    line.trim_end_matches('\r')
-        .split(',')
-        .map(|f| f.trim().trim_matches('"').to_string())
-        .collect()
+    ds.validate(path)?;
+    Ok(ds)
 }
 
 /// Reads an external CSV log with named columns.
 pub fn import_csv(path: &Path, opts: &ImportOptions) -> Result<Dataset, DatasetError> {
-    let text = std::fs::read_to_string(path).map_err(|source| DatasetError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    CsvTable::parse(&text, path)?.to_dataset(opts, path)
+    let table = Table::read(path, ReadOptions::default())?;
+    to_dataset(&table, opts)
 }
 
 /// Reads a pair of `.npy` arrays: commands and measurements, each `N × J` (a 1-D array is

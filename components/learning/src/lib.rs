@@ -14,6 +14,7 @@
 pub mod adam;
 pub mod arch;
 pub mod bench;
+#[cfg(feature = "candle")]
 pub mod candle_ref;
 pub mod dataset;
 pub mod helper;

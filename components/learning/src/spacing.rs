@@ -68,10 +68,9 @@ pub fn command_spacing_deg(ds: &Dataset, train: &[usize]) -> Option<f64> {
 }
 
 /// The largest history decimation `train --decimation auto` uses on single-step data. Chosen
-/// on the transfer benchmark's tuning units only, among 4, 6 and 8, by the mean of paper mode
-/// and newton over the shipped and the large paths with the paper's protocol (eq. (16) data,
-/// 30-epoch TCNs): 67.9 % at 4, 67.1 % at 6, 66.8 % at 8, 38–41 % without
-/// (docs/results/paper-protocol/README.md, "Decimated histories").
+/// on the transfer benchmark's tuning units only, among 4, 6 and 8, by tracking with the
+/// paper's protocol; the figures are in docs/results/paper-protocol/README.md ("Decimated
+/// histories").
 pub const AUTO_DECIMATION: usize = 4;
 
 /// Data count as single-step when fewer than this fraction of their steps exceed the grid.

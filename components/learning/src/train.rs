@@ -14,6 +14,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::adam::Adam;
 use crate::arch::{Arch, Direction, ModelSpec, TcnBlock};
+#[cfg(feature = "candle")]
 use crate::candle_ref::CandleModel;
 use crate::helper::Helper;
 use crate::kernels::{AVec, Net, Precision, Prepared, Workspace};
@@ -124,6 +125,7 @@ pub enum TrainError {
     Config(String),
     #[error("the windows have seq_len {windows} and {wj} joints but the config asks for {cfg}")]
     Mismatch { windows: usize, wj: usize, cfg: usize },
+    #[cfg(feature = "candle")]
     #[error("candle: {0}")]
     Candle(#[from] candle_core::Error),
     #[error("training diverged at epoch {epoch}: the loss is {loss}")]
@@ -189,6 +191,7 @@ enum Engine {
         /// λ and θ₀ of [`TrainConfig::anchor`] when fine-tuning with it.
         anchor: Option<(f32, Vec<f32>)>,
     },
+    #[cfg(feature = "candle")]
     Candle {
         model: Box<CandleModel>,
         opt: Box<candle_nn::AdamW>,
@@ -258,6 +261,13 @@ impl Engine {
                     anchor: None,
                 }
             }
+            #[cfg(not(feature = "candle"))]
+            Backend::Candle => {
+                return Err(TrainError::Config(
+                    "the candle reference backend is not built in: build bowden with `--features candle`".into(),
+                ))
+            }
+            #[cfg(feature = "candle")]
             Backend::Candle => {
                 let model = CandleModel::from_params(spec, &params)?;
                 let opt = model.adam(cfg.lr)?;
@@ -352,6 +362,7 @@ impl Engine {
                 net.prepare_for_step(params, prep);
                 Ok(sse)
             }
+            #[cfg(feature = "candle")]
             Engine::Candle { model, opt, x, y } => {
                 data.gather(ids, x, y);
                 let n = ids.len();
@@ -408,6 +419,7 @@ impl Engine {
                     }
                 }
             }
+            #[cfg(feature = "candle")]
             Engine::Candle { model, x, y, .. } => {
                 for batch in ids.chunks(chunk) {
                     let n = batch.len();
@@ -426,6 +438,7 @@ impl Engine {
     fn params(&self) -> Result<Vec<f32>, TrainError> {
         match self {
             Engine::Fused { params, .. } => Ok(params.to_vec()),
+            #[cfg(feature = "candle")]
             Engine::Candle { model, .. } => Ok(model.params()?),
         }
     }
@@ -662,6 +675,7 @@ impl Engine {
                 *anchor = Some((lambda, theta0.to_vec()));
                 Ok(())
             }
+            #[cfg(feature = "candle")]
             Engine::Candle { .. } => Err(TrainError::Config("fine-tuning runs on the fused backend only".into())),
         }
     }
@@ -679,6 +693,7 @@ impl Engine {
                 params.copy_from_slice(p);
                 net.prepare(params, prep);
             }
+            #[cfg(feature = "candle")]
             Engine::Candle { .. } => {
                 // The optimiser holds the candle variables: starting elsewhere would need both rebuilt.
                 return Err(TrainError::Config("fine-tuning runs on the fused backend only".into()));

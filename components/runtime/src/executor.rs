@@ -17,7 +17,7 @@
 //! origin go to HdrHistograms; a latency above the stage's deadline, a compute time above its
 //! budget, and a skipped release are counted.
 //!
-//! The loop allocates nothing (see `tests/runtime_alloc.rs`) apart from iceoryx2's per-loan `Rc`,
+//! The loop allocates nothing (see `tests/it/runtime_alloc.rs`) apart from iceoryx2's per-loan `Rc`,
 //! served by [`crate::alloc::RtAlloc`]'s pool.
 
 use crate::alloc;

@@ -1,0 +1,12 @@
+//! The crate's integration tests, one binary: each module is one former test file.
+//! (One binary per crate links once instead of once per file; see docs/architecture.md.)
+
+mod common;
+
+mod alloc;
+mod bad_models;
+mod compensator;
+mod feedback;
+mod fixtures;
+mod narrow;
+mod safety;
