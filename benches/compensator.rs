@@ -82,7 +82,7 @@ fn steps(c: &mut Criterion) {
     cfg.budget.budget_ns = 0;
     for (label, spacing) in [("dataset step", 3.0 * 5f64.sqrt()), ("fine 0.06 deg", 0.06)] {
         let targets = random_trajectory(&robot, 20_000, spacing, 2);
-        for mode in Mode::ALL {
+        for &mode in Mode::ALL {
             cfg.mode = mode;
             let mut comp = Compensator::from_config(&cfg, &robot).expect("fixtures load");
             let mut out = StepOutput::default();

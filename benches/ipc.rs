@@ -45,7 +45,9 @@ fn round_trips(c: &mut Criterion) {
     {
         let s = settings(&format!("rt{i}"));
         let mut pp = PingPong::start(v, &s.prefix, &Peer::Thread, 0, 0, None).expect("ping-pong starts");
-        g.bench_function(v.name(), |b| b.iter(|| black_box(pp.round_trip().expect("round trip"))));
+        g.bench_function(v.as_str(), |b| {
+            b.iter(|| black_box(pp.round_trip().expect("round trip")))
+        });
         pp.finish().expect("peer stops");
         cleanup(&s);
     }

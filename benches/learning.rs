@@ -4,20 +4,25 @@
 
 use bowden_learning::bench::bench_windows;
 use bowden_learning::train::{Stepper, TrainConfig};
-use bowden_learning::{Arch, Direction};
+use bowden_learning::{Architecture, Direction};
 use criterion::{criterion_group, criterion_main, Criterion};
 
 fn train_step(c: &mut Criterion) {
     let data = bench_windows(80, 4096).expect("synthetic windows");
     let mut group = c.benchmark_group("train_step_batch32_L80");
-    for arch in [Arch::Tcn, Arch::Lstm, Arch::Fnn, Arch::TcnLstm] {
+    for arch in [
+        Architecture::Tcn,
+        Architecture::Lstm,
+        Architecture::Fnn,
+        Architecture::TcnLstm,
+    ] {
         for threads in [1, 2] {
             let mut cfg = TrainConfig::paper(arch, Direction::Forward, 80, 1, 0);
             cfg.threads = threads;
             let mut stepper = Stepper::new(5, &cfg).expect("model");
             let mut batch = 0usize;
             let n_batches = data.train.len() / 32;
-            group.bench_function(format!("{}_{}t", arch.name(), threads), |b| {
+            group.bench_function(format!("{}_{}t", arch.as_str(), threads), |b| {
                 b.iter(|| {
                     let ids = &data.train[batch * 32..(batch + 1) * 32];
                     batch = (batch + 1) % n_batches;

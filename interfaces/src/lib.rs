@@ -21,6 +21,7 @@
 
 use iceoryx2::prelude::ZeroCopySend;
 
+pub mod model;
 pub mod services;
 
 /// Largest number of cable-driven joints a sample can carry (the paper's robot has 5).
@@ -65,7 +66,19 @@ pub struct SampleHeader {
 
 /// Operating mode of the compensator that produced a [`JointCommand`].
 #[repr(u32)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    strum::EnumString,
+    strum::IntoStaticStr,
+    strum::Display,
+    strum::VariantNames,
+    strum::VariantArray,
+)]
+#[strum(serialize_all = "lowercase")]
 pub enum CompensationMode {
     /// Pass-through: q_cmd = q_desired (the paper's uncalibrated controller).
     Uncalibrated = 0,
@@ -85,13 +98,9 @@ impl CompensationMode {
             _ => None,
         }
     }
-    /// Lower-case name used in configs and reports.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Uncalibrated => "uncalibrated",
-            Self::Paper => "paper",
-            Self::Newton => "newton",
-        }
+    /// The spelling in configs, reports and on the command line.
+    pub fn as_str(self) -> &'static str {
+        self.into()
     }
 }
 

@@ -7,14 +7,15 @@ use bowden_learning::dataset::{import_csv, import_npy, AngleUnit, ImportOptions}
 use bowden_learning::report::train_to_files;
 use bowden_learning::spacing::DecimationRule;
 use bowden_learning::sweep::{execute_runs, merge_sweep, plan_sweep, run_sweep, Selection, SweepConfig, SweepPlan};
-use bowden_learning::{Arch, Backend, Direction, PhySource, Precision, SplitConfig, TcnBlock, TrainConfig};
+use bowden_learning::{Architecture, Backend, Direction, PhySource, Precision, SplitConfig, TcnBlock, TrainConfig};
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 
-const ARCHS: &[&str] = &["fnn", "lstm", "tcn", "tcn-lstm"];
-const DIRECTIONS: &[&str] = &["forward", "inverse"];
-const TCN_BLOCKS: &[&str] = &["relu-linear", "relu-relu"];
+// The spellings are the model contract's (bowden_interfaces::model), listed from the enums.
+const ARCHS: &[&str] = <Architecture as strum::VariantNames>::VARIANTS;
+const DIRECTIONS: &[&str] = <Direction as strum::VariantNames>::VARIANTS;
+const TCN_BLOCKS: &[&str] = <TcnBlock as strum::VariantNames>::VARIANTS;
 const BACKENDS: &[&str] = &["fused", "candle"];
 
 #[derive(Subcommand)]
@@ -283,10 +284,14 @@ pub struct BenchTrainArgs {
 }
 
 /// Values clap has checked against their list (lower-case), parsed.
-fn parse_list<T: std::str::FromStr<Err = String>>(values: &[String], what: &str) -> Result<Vec<T>> {
+fn parse_list<T>(values: &[String], what: &str) -> Result<Vec<T>>
+where
+    T: std::str::FromStr,
+    T::Err: std::fmt::Display,
+{
     values
         .iter()
-        .map(|p| p.parse::<T>().map_err(anyhow::Error::msg))
+        .map(|p| p.parse::<T>().map_err(|e| anyhow::anyhow!("{p:?}: {e}")))
         .collect::<Result<Vec<T>>>()
         .with_context(|| format!("--{what} {}", values.join(",")))
 }
@@ -315,7 +320,7 @@ fn epoch_bar() -> ProgressBar {
 pub fn run(c: Command) -> Result<()> {
     match c {
         Command::Train(a) => {
-            let arch: Arch = a.arch.parse().map_err(anyhow::Error::msg).context("--arch")?;
+            let arch: Architecture = a.arch.parse().map_err(anyhow::Error::msg).context("--arch")?;
             let direction: Direction = a.direction.parse().map_err(anyhow::Error::msg).context("--direction")?;
             let mut cfg = TrainConfig::paper(arch, direction, a.seq_len, a.epochs, a.seed);
             cfg.tcn_block = a
@@ -583,8 +588,8 @@ fn split_names(s: &str) -> Vec<String> {
 pub fn bench(c: BenchCommand) -> Result<()> {
     match c {
         BenchCommand::Train(a) => {
-            let archs: Vec<Arch> = match a.arch.as_slice() {
-                [] => vec![Arch::Tcn, Arch::Lstm],
+            let archs: Vec<Architecture> = match a.arch.as_slice() {
+                [] => vec![Architecture::Tcn, Architecture::Lstm],
                 some => parse_list(some, "arch")?,
             };
             let backend: Backend = a.backend.parse().map_err(anyhow::Error::msg).context("--backend")?;
@@ -625,7 +630,7 @@ pub fn bench(c: BenchCommand) -> Result<()> {
                     println!(
                         "{:8} {:6} {} L={} {} windows, batch {}, {} thread(s), {}: {:.3} s/epoch median, {:.3} min, \
                          wall {:?} s, CPU {:?} s, load avg {}{}{}",
-                        arch.name(),
+                        arch.as_str(),
                         format!("{backend:?}").to_lowercase(),
                         precision,
                         o.seq_len,

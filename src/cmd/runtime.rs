@@ -453,7 +453,7 @@ pub enum BenchCommand {
         #[arg(long)]
         fifo: Option<u8>,
         /// Only these variants (comma-separated), e.g. raw-sample,ports-sample.
-        #[arg(long, value_delimiter = ',', value_parser = clap::builder::PossibleValuesParser::new(IpcVariant::ALL.map(|v| v.name())),
+        #[arg(long, value_delimiter = ',', value_parser = clap::builder::PossibleValuesParser::new(<IpcVariant as strum::VariantNames>::VARIANTS),
               ignore_case = true)]
         variants: Option<Vec<String>>,
         /// Print the rows as JSON on stdout instead of the table.
@@ -535,12 +535,17 @@ pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
                     .iter()
                     .map(|n| {
                         IpcVariant::ALL
-                            .into_iter()
-                            .find(|v| v.name().eq_ignore_ascii_case(n))
+                            .iter()
+                            .copied()
+                            .find(|v| v.as_str().eq_ignore_ascii_case(n))
                             .with_context(|| {
                                 format!(
                                     "--variants `{n}`: known: {}",
-                                    IpcVariant::ALL.iter().map(|v| v.name()).collect::<Vec<_>>().join(", ")
+                                    IpcVariant::ALL
+                                        .iter()
+                                        .map(|v| v.as_str())
+                                        .collect::<Vec<_>>()
+                                        .join(", ")
                                 )
                             })
                     })

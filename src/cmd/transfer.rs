@@ -24,10 +24,11 @@
 use anyhow::{anyhow, bail, Context, Result};
 use bowden_evaluation::metrics::reduction_pct;
 use bowden_evaluation::CONTROLLERS;
+use bowden_interfaces::model::one_of;
 use bowden_learning::dataset::fnv1a64_hex;
 use bowden_learning::spacing::DecimationRule;
 use bowden_learning::sweep::{Selection, SHARDING};
-use bowden_learning::{Arch, Precision};
+use bowden_learning::{Architecture, Precision};
 use clap::{Args, Subcommand};
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
@@ -150,7 +151,7 @@ pub struct Recipe {
     pub judge_seed: u64,
     /// Forward models trained as further controller candidates beside `archs`' pairs: `tune`
     /// pairs each with every inverse model and keeps what its judges rate best (e.g. an LSTM
-    /// forward model, 2–2.5× more accurate than the TCN's with enough data). An architecture
+    /// forward model; how the architectures compare: docs/results/data-study/). An architecture
     /// here must not be in `archs`.
     #[serde(default)]
     pub forward_archs: Vec<String>,
@@ -332,7 +333,8 @@ impl TransferConfig {
             return Err("recipe.archs: name at least one architecture".into());
         }
         for (i, a) in r.archs.iter().enumerate() {
-            a.parse::<Arch>().map_err(|e| format!("recipe.archs[{i}]: {e}"))?;
+            a.parse::<Architecture>()
+                .map_err(|_| format!("recipe.archs[{i}]: {a:?} is not one of {}", one_of::<Architecture>()))?;
             if r.archs[..i].contains(a) {
                 return Err(format!("recipe.archs: `{a}` appears twice"));
             }
@@ -344,14 +346,20 @@ impl TransferConfig {
             return Err("recipe.early_stop: must be at least 1 (or left out)".into());
         }
         for (i, a) in r.judge_archs.iter().enumerate() {
-            a.parse::<Arch>().map_err(|e| format!("recipe.judge_archs[{i}]: {e}"))?;
+            a.parse::<Architecture>().map_err(|_| {
+                format!(
+                    "recipe.judge_archs[{i}]: {a:?} is not one of {}",
+                    one_of::<Architecture>()
+                )
+            })?;
             if r.judge_archs[..i].contains(a) {
                 return Err(format!("recipe.judge_archs: `{a}` appears twice"));
             }
         }
         for (field, list) in [("inverse_archs", &r.inverse_archs), ("forward_archs", &r.forward_archs)] {
             for (i, a) in list.iter().enumerate() {
-                a.parse::<Arch>().map_err(|e| format!("recipe.{field}[{i}]: {e}"))?;
+                a.parse::<Architecture>()
+                    .map_err(|_| format!("recipe.{field}[{i}]: {a:?} is not one of {}", one_of::<Architecture>()))?;
                 if list[..i].contains(a) {
                     return Err(format!("recipe.{field}: `{a}` appears twice"));
                 }
@@ -562,7 +570,7 @@ impl Recipe {
         // f32 is not passed, so the steps of a recipe without the key keep their stamps.
         let precision = self.precision(arch);
         if precision != Precision::F32 {
-            args.extend(["--precision".into(), precision.name().into()]);
+            args.extend(["--precision".into(), precision.as_str().into()]);
         }
         args.extend([
             "--threads".into(),

@@ -2,13 +2,13 @@
 //! fixtures do: the contract is accepted, the TCN is recognised for the incremental
 //! evaluator, and the compensator's numbers are the trained model's.
 
-use bowden_learning::arch::{Arch, Direction, TcnBlock};
+use bowden_learning::arch::{Architecture, Direction, TcnBlock};
 use bowden_learning::synthetic::hysteretic_dataset;
 use bowden_learning::train::{train, TrainConfig};
 use bowden_learning::windows::{PhySource, SplitConfig, WindowSet};
 use bowden_learning::ModelFile;
 
-fn trained(arch: Arch, block: TcnBlock, direction: Direction, l: usize) -> (ModelFile, WindowSet) {
+fn trained(arch: Architecture, block: TcnBlock, direction: Direction, l: usize) -> (ModelFile, WindowSet) {
     let ds = hysteretic_dataset(1200, 5, 4);
     let w = WindowSet::build(&ds, direction, l, SplitConfig::default(), PhySource::Vision).unwrap();
     let mut cfg = TrainConfig::paper(arch, direction, l, 2, 3);
@@ -20,10 +20,10 @@ fn trained(arch: Arch, block: TcnBlock, direction: Direction, l: usize) -> (Mode
 fn exported_models_load_in_the_compensator() {
     let tmp = tempfile::tempdir().unwrap();
     for (arch, block, direction, l) in [
-        (Arch::Tcn, TcnBlock::ReluLinear, Direction::Forward, 80),
-        (Arch::Tcn, TcnBlock::ReluRelu, Direction::Inverse, 50),
-        (Arch::Lstm, TcnBlock::ReluLinear, Direction::Forward, 10),
-        (Arch::Fnn, TcnBlock::ReluLinear, Direction::Inverse, 10),
+        (Architecture::Tcn, TcnBlock::ReluLinear, Direction::Forward, 80),
+        (Architecture::Tcn, TcnBlock::ReluRelu, Direction::Inverse, 50),
+        (Architecture::Lstm, TcnBlock::ReluLinear, Direction::Forward, 10),
+        (Architecture::Fnn, TcnBlock::ReluLinear, Direction::Inverse, 10),
     ] {
         let (model, w) = trained(arch, block, direction, l);
         let path = tmp.path().join(format!("{arch}_{direction}_{l}.onnx"));

@@ -10,7 +10,7 @@
 
 use bowden_compensator::{Compensator, ControllerConfig, Mode, SafetyConfig, StepOutput};
 use bowden_kinematics::{JointsDeg, Robot, N_JOINTS};
-use bowden_learning::arch::{Arch, Direction};
+use bowden_learning::arch::{Architecture, Direction};
 use bowden_learning::dataset::Dataset;
 use bowden_learning::spacing::{auto_decimation, AUTO_DECIMATION};
 use bowden_learning::train::{train, TrainConfig};
@@ -52,7 +52,7 @@ fn poor_pair(ds: &Dataset, dir: &Path, tag: &str, decimation: usize) -> (PathBuf
     for d in [Direction::Forward, Direction::Inverse] {
         let mut w = WindowSet::build(ds, d, 80, SplitConfig::default(), PhySource::Vision).unwrap();
         w.set_decimation(decimation).unwrap();
-        let mut cfg = TrainConfig::paper(Arch::Tcn, d, 80, 30, 7);
+        let mut cfg = TrainConfig::paper(Architecture::Tcn, d, 80, 30, 7);
         cfg.threads = 2;
         cfg.decimation = decimation;
         let m = train(&w, &cfg, None).unwrap().model;

@@ -60,20 +60,10 @@ fn shipped_controller_configs_load_their_models_and_compensate() {
 }
 
 /// `bowden train` (bowden-learning) writes the support props the compensator reads: the two
-/// crates do not depend on each other, so the key names are checked here, end to end.
+/// crates share the contract's key names (`bowden_interfaces::model`) but not the code that
+/// writes and reads them, so a written model is loaded here, end to end.
 #[test]
 fn the_support_train_writes_is_the_support_the_compensator_reads() {
-    use bowden_compensator::contract::keys;
-    use bowden_learning::support::{KEY_CMD_MAX, KEY_CMD_MIN, KEY_CMD_STEP_MAX, KEY_GAP_MAX};
-    assert_eq!(
-        [KEY_CMD_MIN, KEY_CMD_MAX, KEY_CMD_STEP_MAX, KEY_GAP_MAX],
-        [
-            keys::SUPPORT_CMD_MIN,
-            keys::SUPPORT_CMD_MAX,
-            keys::SUPPORT_CMD_STEP_MAX,
-            keys::SUPPORT_GAP_MAX
-        ]
-    );
     let ds = bowden_learning::synthetic::hysteretic_dataset(400, 5, 3);
     let w = bowden_learning::WindowSet::build(
         &ds,
@@ -84,7 +74,7 @@ fn the_support_train_writes_is_the_support_the_compensator_reads() {
     )
     .unwrap();
     let cfg = bowden_learning::TrainConfig::paper(
-        bowden_learning::Arch::Fnn,
+        bowden_learning::Architecture::Fnn,
         bowden_learning::Direction::Forward,
         10,
         1,

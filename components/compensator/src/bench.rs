@@ -8,18 +8,31 @@
 
 use crate::compensator::{Compensator, CompensatorError, StepOutput};
 use crate::config::{ControllerConfig, EvaluatorChoice, Mode};
-use crate::contract::Direction;
 use crate::model::{LoadOptions, Model};
 use crate::prefix::{PrefixSync, PrefixWorkerOptions};
 use crate::refine::StopReason;
+use bowden_interfaces::model::Direction;
 use bowden_kinematics::{Robot, N_JOINTS};
 use hdrhistogram::Histogram;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 /// How the targets move.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    serde::Serialize,
+    strum::EnumString,
+    strum::IntoStaticStr,
+    strum::Display,
+    strum::VariantNames,
+    strum::VariantArray,
+)]
 #[serde(rename_all = "kebab-case")]
+#[strum(serialize_all = "kebab-case")]
 pub enum Scenario {
     /// One dataset step (3·√5 deg) per call, as eq. (16): every step appends a history entry,
     /// so both models' prefixes change every step (the worst case).
@@ -30,11 +43,9 @@ pub enum Scenario {
 }
 
 impl Scenario {
-    pub fn name(self) -> &'static str {
-        match self {
-            Scenario::DatasetStep => "dataset-step",
-            Scenario::Fine => "fine",
-        }
+    /// The spelling in configs, reports and on the command line.
+    pub fn as_str(self) -> &'static str {
+        self.into()
     }
 }
 
@@ -451,7 +462,7 @@ pub fn run(opts: &BenchOptions, robot: &Robot, progress: &mut dyn FnMut(u64)) ->
         let n_targets = (opts.steps + 2000).min(400_000);
         let targets = random_trajectory(robot, n_targets, spacing, opts.seed);
         let mut paper_inc = None;
-        let runs = Mode::ALL.into_iter().map(|m| (m, PrefixAt::InStep)).chain([
+        let runs = Mode::ALL.iter().map(|&m| (m, PrefixAt::InStep)).chain([
             (Mode::Paper, PrefixAt::Prepare),
             (Mode::Newton, PrefixAt::Prepare),
             (Mode::Paper, PrefixAt::Worker),
@@ -557,7 +568,7 @@ impl BenchReport {
         let label = |r: &Latency| {
             format!(
                 "{} · {} · {}{}",
-                r.scenario.name(),
+                r.scenario.as_str(),
                 r.mode,
                 r.evaluator,
                 match r.prefix {
@@ -690,7 +701,7 @@ impl BenchReport {
             };
             s += &format!(
                 "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {:.1}/{} | {:.1} % | {:.1} % | {} | {} |\n",
-                r.scenario.name(),
+                r.scenario.as_str(),
                 r.mode,
                 r.evaluator,
                 r.prefix,
@@ -740,7 +751,7 @@ impl BenchReport {
                 let ratio = |a: u64, b: u64| format!("{:.2}×", a as f64 / b.max(1) as f64);
                 s += &format!(
                     "| {} | {} | {} / {} | {} | {} | {} | {} |\n",
-                    step.scenario.name(),
+                    step.scenario.as_str(),
                     step.mode,
                     us(step.p50_ns),
                     us(step.p999_ns),
@@ -755,7 +766,7 @@ impl BenchReport {
         for r in &self.ratios {
             s += &format!(
                 "| {} | {:.0}× | {:.0}× | {:.0}× |\n",
-                r.scenario.name(),
+                r.scenario.as_str(),
                 r.p50,
                 r.mean,
                 r.p999

@@ -1,12 +1,12 @@
 //! The compensation step: q_desired(t) → q_cmd(t), bounded in time and allocation-free.
 
 use crate::config::{ConfigError, ControllerConfig, EvaluatorChoice, Mode, SafetyConfig};
-use crate::contract::{Direction, Support, MAX_JOINTS};
 use crate::history::History;
 use crate::model::{Evaluator, LoadOptions, Model, ModelError};
 use crate::net::IncrementalNet;
 use crate::prefix::{PrefixSync, PrefixWorker, PrefixWorkerOptions, FWD, INV};
 use crate::refine::{newton_refine, paper_refine, NewtonParams, PaperParams, RefineResult, StopReason, WindowModel};
+use bowden_interfaces::model::{Direction, Support, MAX_JOINTS};
 use bowden_kinematics::{Robot, N_JOINTS};
 use std::time::Instant;
 

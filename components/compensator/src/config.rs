@@ -35,8 +35,22 @@ pub enum ConfigError {
 }
 
 /// Compensation mode (the names of `bowden_interfaces::CompensationMode`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, serde::Serialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Deserialize,
+    serde::Serialize,
+    strum::EnumString,
+    strum::IntoStaticStr,
+    strum::Display,
+    strum::VariantNames,
+    strum::VariantArray,
+)]
 #[serde(rename_all = "lowercase")]
+#[strum(serialize_all = "lowercase")]
 pub enum Mode {
     /// Pass-through: q_cmd = q_desired (the paper's uncalibrated controller).
     Uncalibrated,
@@ -47,16 +61,15 @@ pub enum Mode {
 }
 
 impl Mode {
-    pub const ALL: [Mode; 3] = [Mode::Uncalibrated, Mode::Paper, Mode::Newton];
-    pub fn name(self) -> &'static str {
-        match self {
-            Mode::Uncalibrated => "uncalibrated",
-            Mode::Paper => "paper",
-            Mode::Newton => "newton",
-        }
+    /// Every mode, in declaration order.
+    pub const ALL: &'static [Mode] = <Mode as strum::VariantArray>::VARIANTS;
+    /// The spelling in configs, reports and on the command line.
+    pub fn as_str(self) -> &'static str {
+        self.into()
     }
+    /// Parses the spelling of [`Mode::as_str`].
     pub fn parse(s: &str) -> Option<Mode> {
-        Mode::ALL.into_iter().find(|m| m.name() == s)
+        s.parse().ok()
     }
     pub fn to_interface(self) -> bowden_interfaces::CompensationMode {
         use bowden_interfaces::CompensationMode as C;
@@ -81,12 +94,6 @@ impl Mode {
             Mode::Paper => (true, true),
             Mode::Newton => (true, newton_init_from_inverse),
         }
-    }
-}
-
-impl std::fmt::Display for Mode {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
     }
 }
 

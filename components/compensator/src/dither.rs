@@ -10,7 +10,7 @@
 //! the bound on the added tip motion. Draws are seeded (ChaCha8): lockstep runs reproduce.
 //! Allocation-free.
 
-use crate::contract::MAX_JOINTS;
+use bowden_interfaces::model::MAX_JOINTS;
 use bowden_kinematics::{Robot, N_JOINTS};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

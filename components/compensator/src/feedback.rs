@@ -63,13 +63,27 @@
 //!
 //! Everything is sized in [`Feedback::new`]; the per-cycle calls allocate nothing.
 
-use crate::contract::MAX_JOINTS;
+use bowden_interfaces::model::MAX_JOINTS;
 use bowden_interfaces::JointEstimate;
 use serde::Deserialize;
 
 /// Where the correction goes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Deserialize,
+    Default,
+    strum::EnumString,
+    strum::IntoStaticStr,
+    strum::Display,
+    strum::VariantNames,
+    strum::VariantArray,
+)]
 #[serde(rename_all = "lowercase")]
+#[strum(serialize_all = "lowercase")]
 pub enum ApplyTo {
     /// The compensator runs on `q_desired + u`: the learned inverse turns the corrected
     /// target into a command, crossing the dead band where the robot needs it.
@@ -80,11 +94,9 @@ pub enum ApplyTo {
 }
 
 impl ApplyTo {
-    pub fn name(self) -> &'static str {
-        match self {
-            ApplyTo::Target => "target",
-            ApplyTo::Command => "command",
-        }
+    /// The spelling in configs, reports and on the command line.
+    pub fn as_str(self) -> &'static str {
+        self.into()
     }
 }
 
@@ -727,7 +739,7 @@ impl Feedback {
              wrong size {}, non-finite {}, outliers {}), stale {}, unknown tick {}, anti-windup holds {}, at clamp {}, \
              marker-loss fallbacks {}, max |u + b| {:.3} deg, slow correction: gain {}, max |b| {:.3} deg, \
              at clamp {}, now {}",
-            self.cfg.apply.name(),
+            self.cfg.apply.as_str(),
             self.cfg.gain,
             c.estimates,
             c.updates,

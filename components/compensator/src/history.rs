@@ -15,7 +15,7 @@
 //! Windows start as zeros (left zero padding in degrees, as the paper pads). The current
 //! target itself is never in the history: it is the window's newest column.
 
-use crate::contract::MAX_JOINTS;
+use bowden_interfaces::model::MAX_JOINTS;
 
 /// When a new history entry is taken.
 #[derive(Debug, Clone, Copy, PartialEq)]

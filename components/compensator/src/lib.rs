@@ -2,8 +2,8 @@
 //! learned forward/inverse models (Park et al., RA-L 2024, Algorithm 1 and §IV-D), bounded in
 //! time and allocation-free in the control loop.
 //!
-//! - [`contract`]: the ONNX model contract (names, metadata keys, allowed values), shared
-//!   with the model writers.
+//! - The ONNX model contract (names, metadata keys, allowed values) it loads against is
+//!   [`bowden_interfaces::model`], shared with the model writer (`bowden-learning`).
 //! - [`Model`]: loads a contract-following ONNX file with tract-onnx, checks it (shape,
 //!   metadata, finite weights), recognises FNN / LSTM / TCN / TCN-LSTM graphs (PyTorch's
 //!   exports included) and verifies the exact incremental evaluator against tract.
@@ -27,7 +27,6 @@
 pub mod bench;
 pub mod compensator;
 pub mod config;
-pub mod contract;
 pub mod dither;
 pub mod feedback;
 pub mod history;

@@ -1,10 +1,10 @@
 //! Loading contract-following ONNX models (tract-onnx), checking them, and building their
 //! evaluators: the exact incremental one when the graph is recognised, tract otherwise.
 
-use crate::contract::{self, Architecture, ContractError, ModelMetadata, Support, TcnBlock};
 use crate::net::{IncrementalNet, Net, NetSummary};
 use crate::recognise::{recognise, ProtoLstm};
 use crate::refine::WindowModel;
+use bowden_interfaces::model::{self as contract, Architecture, ContractError, ModelMetadata, Support, TcnBlock};
 use prost::Message;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -99,7 +99,7 @@ pub fn write_csv(w: &mut impl Write, outs: &[StepOutput]) -> std::io::Result<()>
         });
         f.push(o.iterations.to_string());
         f.push(o.forward_evals.to_string());
-        f.push(o.stop_reason.name().to_string());
+        f.push(o.stop_reason.as_str().to_string());
         f.push(o.elapsed_ns.to_string());
         writeln!(w, "{}", f.join(","))?;
     }
@@ -126,7 +126,7 @@ pub fn summarize(outs: &[StepOutput]) -> OfflineSummary {
         .collect();
     let mut reasons: Vec<(String, usize)> = Vec::new();
     for o in outs {
-        let name = o.stop_reason.name();
+        let name = o.stop_reason.as_str();
         match reasons.iter_mut().find(|(r, _)| r == name) {
             Some((_, c)) => *c += 1,
             None => reasons.push((name.to_string(), 1)),

@@ -13,7 +13,7 @@
 //! Both are bounded: at most M model evaluations, stop at the threshold, or when the caller's
 //! `out_of_time` says the time budget is spent. Neither allocates.
 
-use crate::contract::MAX_JOINTS;
+use bowden_interfaces::model::MAX_JOINTS;
 
 /// A window model `[L, J] → [J]` whose first `L−1` inputs are fixed while the newest varies.
 pub trait WindowModel {
@@ -33,8 +33,21 @@ pub trait WindowModel {
 }
 
 /// Why a refinement stopped. Codes 0–3 are those of `JointCommand::stop_reason`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    strum::EnumString,
+    strum::IntoStaticStr,
+    strum::Display,
+    strum::VariantNames,
+    strum::VariantArray,
+)]
 #[repr(u32)]
+#[strum(serialize_all = "kebab-case")]
 pub enum StopReason {
     /// No refinement ran (uncalibrated mode).
     #[default]
@@ -57,15 +70,9 @@ impl StopReason {
     pub fn code(self) -> u32 {
         self as u32
     }
-    pub fn name(self) -> &'static str {
-        match self {
-            StopReason::None => "none",
-            StopReason::Threshold => "threshold",
-            StopReason::MaxIterations => "max-iterations",
-            StopReason::Budget => "budget",
-            StopReason::Stalled => "stalled",
-            StopReason::RejectedInput => "rejected-input",
-        }
+    /// The spelling in configs, reports and on the command line.
+    pub fn as_str(self) -> &'static str {
+        self.into()
     }
 }
 

@@ -11,8 +11,8 @@
 
 use crate::compensator::PreparedModels;
 use crate::config::EvaluatorChoice;
-use crate::contract::Direction;
 use crate::model::{Evaluator, LoadOptions, Model};
+use bowden_interfaces::model::Direction;
 use bowden_interfaces::{fnv1a64, ModelUpdate};
 use crossbeam::channel::{bounded, select, Receiver, Sender, TrySendError};
 use std::path::Path;

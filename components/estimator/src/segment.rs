@@ -6,7 +6,19 @@ use crate::config::HsvRange;
 
 /// The four marker colours, in `HsvConfig::ranges` order. Class 0 of the class map is
 /// "no marker colour"; colour c is stored as `c as u8 + 1`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    strum::EnumString,
+    strum::IntoStaticStr,
+    strum::Display,
+    strum::VariantNames,
+    strum::VariantArray,
+)]
+#[strum(serialize_all = "lowercase")]
 pub enum Colour {
     Red = 0,
     Blue = 1,
@@ -15,9 +27,10 @@ pub enum Colour {
 }
 
 impl Colour {
-    pub const ALL: [Colour; 4] = [Colour::Red, Colour::Blue, Colour::Yellow, Colour::Green];
-    pub fn name(self) -> &'static str {
-        ["red", "blue", "yellow", "green"][self as usize]
+    pub const ALL: &'static [Colour] = <Colour as strum::VariantArray>::VARIANTS;
+    /// The spelling in configs, reports and on the command line.
+    pub fn as_str(self) -> &'static str {
+        self.into()
     }
 }
 

@@ -40,9 +40,9 @@ fn time(name: &str, m: usize, n: usize, k: usize, rs: usize, cs: usize, reps: us
 fn main() {
     if std::env::args().any(|a| a == "--hash") {
         // Bits of a short LSTM / TCN-LSTM training, to compare kernel versions.
-        use bowden_learning::{train, Arch, Direction, TrainConfig};
+        use bowden_learning::{train, Architecture, Direction, TrainConfig};
         let data = bowden_learning::bench::bench_windows(80, 640).expect("windows");
-        for arch in [Arch::Lstm, Arch::TcnLstm] {
+        for arch in [Architecture::Lstm, Architecture::TcnLstm] {
             let mut cfg = TrainConfig::paper(arch, Direction::Forward, 80, 2, 3);
             cfg.threads = 2;
             let out = train(&data, &cfg, None).expect("train");
@@ -81,9 +81,9 @@ fn main() {
 }
 
 pub fn lstm_parts() {
-    use bowden_learning::arch::{Arch, ModelSpec, TcnBlock};
+    use bowden_learning::arch::{Architecture, ModelSpec, TcnBlock};
     use bowden_learning::kernels::lstm::{self, LstmDims, LstmGrads, LstmParamIdx, LstmPrepared, LstmWork};
-    let spec = ModelSpec::new(Arch::Lstm, 80, 5, TcnBlock::ReluLinear);
+    let spec = ModelSpec::new(Architecture::Lstm, 80, 5, TcnBlock::ReluLinear);
     let layout = spec.layout();
     let params = spec.init_params(1);
     let idx = LstmParamIdx {

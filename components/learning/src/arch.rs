@@ -19,126 +19,9 @@ pub const FNN_HIDDEN: usize = 128;
 pub const TCN_KERNEL: usize = 3;
 pub const TCN_DILATION_BASE: usize = 2;
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Arch {
-    Fnn,
-    Lstm,
-    Tcn,
-    TcnLstm,
-}
-
-impl Arch {
-    pub const ALL: [Arch; 4] = [Arch::Fnn, Arch::Lstm, Arch::Tcn, Arch::TcnLstm];
-
-    /// The name used on the command line, in file names and in ONNX metadata.
-    pub fn name(self) -> &'static str {
-        match self {
-            Arch::Fnn => "fnn",
-            Arch::Lstm => "lstm",
-            Arch::Tcn => "tcn",
-            Arch::TcnLstm => "tcn-lstm",
-        }
-    }
-
-    pub fn has_tcn(self) -> bool {
-        matches!(self, Arch::Tcn | Arch::TcnLstm)
-    }
-
-    pub fn has_lstm(self) -> bool {
-        matches!(self, Arch::Lstm | Arch::TcnLstm)
-    }
-}
-
-impl std::fmt::Display for Arch {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl std::str::FromStr for Arch {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Arch::ALL
-            .into_iter()
-            .find(|a| a.name() == s)
-            .ok_or_else(|| format!("architecture {s:?} is not one of fnn, lstm, tcn, tcn-lstm"))
-    }
-}
-
-/// Where the ReLUs of a TCN residual block sit (docs/architecture.md §5).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum TcnBlock {
-    /// ReLU between the two convolutions only; the second is linear (the default: a block
-    /// can then add negative terms, so the output can fall below the input line).
-    #[default]
-    ReluLinear,
-    /// ReLU after both convolutions, the paper read literally.
-    ReluRelu,
-}
-
-impl TcnBlock {
-    pub fn name(self) -> &'static str {
-        match self {
-            TcnBlock::ReluLinear => "relu-linear",
-            TcnBlock::ReluRelu => "relu-relu",
-        }
-    }
-}
-
-impl std::fmt::Display for TcnBlock {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl std::str::FromStr for TcnBlock {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "relu-linear" => Ok(TcnBlock::ReluLinear),
-            "relu-relu" => Ok(TcnBlock::ReluRelu),
-            _ => Err(format!("TCN block {s:?} is not relu-linear or relu-relu")),
-        }
-    }
-}
-
-/// Which way a model maps (paper eq. 17, 18).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Direction {
-    /// q_cmd history → q_phy.
-    Forward,
-    /// q_phy history → q_cmd.
-    Inverse,
-}
-
-impl Direction {
-    pub fn name(self) -> &'static str {
-        match self {
-            Direction::Forward => "forward",
-            Direction::Inverse => "inverse",
-        }
-    }
-}
-
-impl std::fmt::Display for Direction {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl std::str::FromStr for Direction {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "forward" => Ok(Direction::Forward),
-            "inverse" => Ok(Direction::Inverse),
-            _ => Err(format!("direction {s:?} is not forward or inverse")),
-        }
-    }
-}
+// The architectures, directions and TCN block variants are the model contract's: one
+// definition for the writer (this crate) and the loader (the compensator).
+pub use bowden_interfaces::model::{Architecture, Direction, TcnBlock};
 
 /// Number of TCN residual blocks for a sequence length, eq. (20):
 /// ⌈log_d((L−1)(d−1)/(2k−2) + 1)⌉, computed in integers (the smallest n with
@@ -164,7 +47,7 @@ pub fn tcn_dilation(block: usize) -> usize {
 /// One architecture at one sequence length and joint count.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub struct ModelSpec {
-    pub arch: Arch,
+    pub arch: Architecture,
     pub seq_len: usize,
     pub joints: usize,
     pub tcn_block: TcnBlock,
@@ -227,7 +110,7 @@ impl ParamLayout {
 }
 
 impl ModelSpec {
-    pub fn new(arch: Arch, seq_len: usize, joints: usize, tcn_block: TcnBlock) -> Self {
+    pub fn new(arch: Architecture, seq_len: usize, joints: usize, tcn_block: TcnBlock) -> Self {
         Self {
             arch,
             seq_len,
@@ -274,7 +157,7 @@ impl ModelSpec {
             l.push("fc.2.weight".into(), vec![j, HEAD_HIDDEN], HEAD_HIDDEN);
             l.push("fc.2.bias".into(), vec![j], HEAD_HIDDEN);
         }
-        if self.arch == Arch::Fnn {
+        if self.arch == Architecture::Fnn {
             let n_in = j * self.seq_len;
             l.push("net.1.weight".into(), vec![FNN_HIDDEN, n_in], n_in);
             l.push("net.1.bias".into(), vec![FNN_HIDDEN], n_in);
@@ -322,7 +205,7 @@ mod tests {
 
     #[test]
     fn init_is_seeded_and_bounded() {
-        let spec = ModelSpec::new(Arch::Tcn, 80, 5, TcnBlock::ReluLinear);
+        let spec = ModelSpec::new(Architecture::Tcn, 80, 5, TcnBlock::ReluLinear);
         let a = spec.init_params(7);
         assert_eq!(a, spec.init_params(7));
         assert_ne!(a, spec.init_params(8));

@@ -15,7 +15,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::arch::{Arch, Direction, ModelSpec, TcnBlock};
+use crate::arch::{Architecture, Direction, ModelSpec, TcnBlock};
 use crate::kernels::Precision;
 use crate::synthetic::hysteretic_dataset;
 use crate::train::{time_epoch, Backend, TrainConfig, TrainError};
@@ -26,17 +26,17 @@ pub const PAPER_TRAIN_WINDOWS: usize = 24_565;
 
 /// PyTorch 2.15, 2 threads, seconds per epoch on the machine issue #15 was measured on (not
 /// this one necessarily: `--pytorch` measures here).
-pub fn pytorch_reference_seconds(arch: Arch) -> Option<f64> {
+pub fn pytorch_reference_seconds(arch: Architecture) -> Option<f64> {
     match arch {
-        Arch::Tcn => Some(3.65),
-        Arch::Lstm => Some(6.4),
+        Architecture::Tcn => Some(3.65),
+        Architecture::Lstm => Some(6.4),
         _ => None,
     }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct BenchOptions {
-    pub arch: Arch,
+    pub arch: Architecture,
     pub seq_len: usize,
     pub windows: usize,
     pub batch_size: usize,
@@ -49,7 +49,7 @@ pub struct BenchOptions {
 }
 
 impl BenchOptions {
-    pub fn paper(arch: Arch) -> Self {
+    pub fn paper(arch: Architecture) -> Self {
         Self {
             arch,
             seq_len: 80,
@@ -198,8 +198,8 @@ pub enum PytorchError {
 /// interpreter `python`, which must have torch: median seconds of `opts.epochs` epochs.
 pub fn pytorch_epoch_seconds(python: &std::path::Path, opts: &BenchOptions, bf16: bool) -> Result<f64, PytorchError> {
     let arch = match opts.arch {
-        Arch::Lstm => "lstm",
-        Arch::Tcn => "tcn",
+        Architecture::Lstm => "lstm",
+        Architecture::Tcn => "tcn",
         other => {
             return Err(PytorchError::NoResult {
                 script: "pytorch_epoch.py".into(),

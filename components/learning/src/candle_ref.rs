@@ -7,7 +7,7 @@ use candle_core::{DType, Device, Module, Tensor, Var};
 use candle_nn::rnn::RNN;
 use candle_nn::{Optimizer, VarBuilder, VarMap};
 
-use crate::arch::{tcn_dilation, Arch, ModelSpec, ParamLayout, TcnBlock, HEAD_HIDDEN, LSTM_HIDDEN};
+use crate::arch::{tcn_dilation, Architecture, ModelSpec, ParamLayout, TcnBlock, HEAD_HIDDEN, LSTM_HIDDEN};
 
 pub type CandleResult<T> = candle_core::Result<T>;
 
@@ -73,11 +73,11 @@ impl CandleModel {
             None
         };
         let mlp = match spec.arch {
-            Arch::Lstm | Arch::TcnLstm => vec![
+            Architecture::Lstm | Architecture::TcnLstm => vec![
                 candle_nn::linear(LSTM_HIDDEN, HEAD_HIDDEN, vb.pp("fc.0"))?,
                 candle_nn::linear(HEAD_HIDDEN, j, vb.pp("fc.2"))?,
             ],
-            Arch::Fnn => {
+            Architecture::Fnn => {
                 let n_in = j * spec.seq_len;
                 vec![
                     candle_nn::linear(n_in, crate::arch::FNN_HIDDEN, vb.pp("net.1"))?,
@@ -85,7 +85,7 @@ impl CandleModel {
                     candle_nn::linear(crate::arch::FNN_HIDDEN, j, vb.pp("net.5"))?,
                 ]
             }
-            Arch::Tcn => Vec::new(),
+            Architecture::Tcn => Vec::new(),
         };
         Ok(Self {
             spec,
@@ -136,7 +136,7 @@ impl CandleModel {
                 }
                 z = (z + h2)?;
             }
-            if self.spec.arch == Arch::Tcn {
+            if self.spec.arch == Architecture::Tcn {
                 return z.narrow(2, l - 1, 1)?.squeeze(2);
             }
             feat = z.transpose(1, 2)?.contiguous()?; // [b, L, J]

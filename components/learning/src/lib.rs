@@ -29,7 +29,7 @@ pub mod synthetic;
 pub mod train;
 pub mod windows;
 
-pub use arch::{tcn_num_blocks, Arch, Direction, ModelSpec, TcnBlock};
+pub use arch::{tcn_num_blocks, Architecture, Direction, ModelSpec, TcnBlock};
 pub use dataset::{AngleUnit, Dataset, DatasetError, ImportOptions, Manifest};
 pub use kernels::Precision;
 pub use onnx::{ModelFile, OnnxError, TractModel};

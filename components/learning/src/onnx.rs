@@ -17,12 +17,13 @@ use prost::Message;
 use tract_onnx::pb;
 use tract_onnx::pb::{tensor_shape_proto, type_proto};
 
-use crate::arch::{tcn_dilation, Arch, Direction, ModelSpec, TcnBlock, FNN_HIDDEN, HEAD_HIDDEN, LSTM_HIDDEN};
+use bowden_interfaces::model::{keys, parse_prop, ContractError, ModelMetadata, UNITS_DEG};
+
+use crate::arch::{tcn_dilation, Architecture, Direction, ModelSpec, TcnBlock, FNN_HIDDEN, HEAD_HIDDEN, LSTM_HIDDEN};
 use crate::support::DataSupport;
 use crate::windows::Normaliser;
 
-pub const INPUT_NAME: &str = "q_seq_deg";
-pub const OUTPUT_NAME: &str = "q_deg";
+pub use bowden_interfaces::model::{INPUT_NAME, OUTPUT_NAME};
 pub const OPSET: i64 = 17;
 pub const IR_VERSION: i64 = 8;
 
@@ -259,12 +260,12 @@ impl ModelFile {
             tcn_out = Some(z);
         }
         let core_out = match spec.arch {
-            Arch::Tcn => {
+            Architecture::Tcn => {
                 let last = g.init_i64("tcn.last_step", &[], &[-1]);
                 let Some(z) = tcn_out else { unreachable!() };
                 g.node("Gather", "tcn", &[&z, &last], vec![attr_int("axis", 2)])
             }
-            Arch::Lstm | Arch::TcnLstm => {
+            Architecture::Lstm | Architecture::TcnLstm => {
                 let seq = match &tcn_out {
                     // [1, J, L] → [L, 1, J]
                     Some(z) => g.node("Transpose", "lstm", &[z], vec![attr_ints("perm", &[2, 0, 1])]),
@@ -303,7 +304,7 @@ impl ModelFile {
                 }
                 x
             }
-            Arch::Fnn => {
+            Architecture::Fnn => {
                 feat = g.node("Flatten", "fnn", &[&feat], vec![attr_int("axis", 1)]);
                 let mut x = feat.clone();
                 let layers = [("net.1", FNN_HIDDEN), ("net.3", FNN_HIDDEN), ("net.5", j)];
@@ -325,23 +326,21 @@ impl ModelFile {
             vec![OUTPUT_NAME.to_string()],
         );
 
-        let mut meta = vec![
-            ("direction", self.direction.name().to_string()),
-            ("seq_len", l.to_string()),
-            ("joints", j.to_string()),
-            ("architecture", spec.arch.name().to_string()),
-            ("units", "deg".to_string()),
-        ];
-        if spec.arch.has_tcn() {
-            meta.push(("tcn_block", spec.tcn_block.name().to_string()));
-        }
+        let contract = ModelMetadata {
+            direction: self.direction,
+            seq_len: l,
+            joints: j,
+            architecture: spec.arch,
+            tcn_block: spec.arch.has_tcn().then_some(spec.tcn_block),
+        };
+        let mut meta: Vec<(String, String)> = contract.to_props();
         if let Some(sup) = &self.support {
             for (k, v) in sup.to_props() {
-                meta.push((k, v));
+                meta.push((k.to_string(), v));
             }
         }
         meta.push((
-            "producer_note",
+            "producer_note".to_string(),
             format!(
                 "bowden-learning {} (fused-kernel training, Rust)",
                 env!("CARGO_PKG_VERSION")
@@ -357,7 +356,7 @@ impl ModelFile {
             producer_version: env!("CARGO_PKG_VERSION").into(),
             graph: Some(pb::GraphProto {
                 node: g.nodes,
-                name: format!("{}_{}_L{}_J{}", spec.arch.name(), self.direction.name(), l, j),
+                name: format!("{}_{}_L{}_J{}", spec.arch, self.direction, l, j),
                 initializer: g.inits,
                 input: vec![value_info(INPUT_NAME, &[1, l as i64, j as i64])],
                 output: vec![value_info(OUTPUT_NAME, &[1, j as i64])],
@@ -365,10 +364,7 @@ impl ModelFile {
             }),
             metadata_props: meta
                 .into_iter()
-                .map(|(k, v)| pb::StringStringEntryProto {
-                    key: k.into(),
-                    value: v,
-                })
+                .map(|(k, v)| pb::StringStringEntryProto { key: k, value: v })
                 .collect(),
             ..Default::default()
         }
@@ -419,19 +415,20 @@ impl ModelFile {
                 .copied()
                 .ok_or_else(|| bad(format!("metadata prop {k:?} is missing")))
         };
-        let arch: Arch = get("architecture")?.parse().map_err(bad)?;
-        let direction: Direction = get("direction")?.parse().map_err(bad)?;
-        let seq_len: usize = get("seq_len")?
+        let enumerated = |e: ContractError| bad(e.to_string());
+        let arch: Architecture = parse_prop(keys::ARCHITECTURE, get(keys::ARCHITECTURE)?).map_err(enumerated)?;
+        let direction: Direction = parse_prop(keys::DIRECTION, get(keys::DIRECTION)?).map_err(enumerated)?;
+        let seq_len: usize = get(keys::SEQ_LEN)?
             .parse()
-            .map_err(|_| bad(format!("seq_len {:?} is not an integer", meta.get("seq_len"))))?;
-        let joints: usize = get("joints")?
+            .map_err(|_| bad(format!("seq_len {:?} is not an integer", meta.get(keys::SEQ_LEN))))?;
+        let joints: usize = get(keys::JOINTS)?
             .parse()
-            .map_err(|_| bad(format!("joints {:?} is not an integer", meta.get("joints"))))?;
-        if get("units")? != "deg" {
-            return Err(bad(format!("units {:?} is not deg", meta.get("units"))));
+            .map_err(|_| bad(format!("joints {:?} is not an integer", meta.get(keys::JOINTS))))?;
+        if get(keys::UNITS)? != UNITS_DEG {
+            return Err(bad(format!("units {:?} is not deg", meta.get(keys::UNITS))));
         }
-        let tcn_block = match meta.get("tcn_block") {
-            Some(v) => v.parse().map_err(bad)?,
+        let tcn_block = match meta.get(keys::TCN_BLOCK) {
+            Some(v) => parse_prop(keys::TCN_BLOCK, v).map_err(enumerated)?,
             None if arch.has_tcn() => TcnBlock::ReluRelu, // the paper's reading
             None => TcnBlock::default(),
         };
@@ -498,13 +495,15 @@ impl ModelFile {
             put(&format!("tcn.blocks.{k}.{c}.bias"), &tensor(&input(n, 2)?, joints)?)?;
         }
         let dense: Vec<(&str, usize, usize)> = match arch {
-            Arch::Lstm | Arch::TcnLstm => vec![("fc.0", LSTM_HIDDEN, HEAD_HIDDEN), ("fc.2", HEAD_HIDDEN, joints)],
-            Arch::Fnn => vec![
+            Architecture::Lstm | Architecture::TcnLstm => {
+                vec![("fc.0", LSTM_HIDDEN, HEAD_HIDDEN), ("fc.2", HEAD_HIDDEN, joints)]
+            }
+            Architecture::Fnn => vec![
                 ("net.1", joints * seq_len, FNN_HIDDEN),
                 ("net.3", FNN_HIDDEN, FNN_HIDDEN),
                 ("net.5", FNN_HIDDEN, joints),
             ],
-            Arch::Tcn => vec![],
+            Architecture::Tcn => vec![],
         };
         if gemms.len() != dense.len() {
             return Err(bad(format!("{} Gemm nodes, a {arch} has {}", gemms.len(), dense.len())));

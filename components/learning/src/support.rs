@@ -4,20 +4,18 @@
 //! compensator, which keeps every candidate command inside it: a learned model is only
 //! trustworthy where it was trained (docs/architecture.md, "Safe refinement").
 //!
-//! The prop names are those of `bowden_compensator::contract::keys::SUPPORT_*` (the two
-//! crates do not depend on each other; a root-crate test checks that what `train` writes the
-//! compensator reads).
+//! The prop names are the model contract's (`bowden_interfaces::model::keys::SUPPORT_*`); the
+//! compensator reads them with `bowden_interfaces::model::Support`.
 
 use serde::{Deserialize, Serialize};
 
 use crate::arch::Direction;
 use crate::windows::WindowSet;
 
-/// Prop keys (must equal `bowden_compensator::contract::keys::SUPPORT_*`).
-pub const KEY_CMD_MIN: &str = "support_cmd_min_deg";
-pub const KEY_CMD_MAX: &str = "support_cmd_max_deg";
-pub const KEY_CMD_STEP_MAX: &str = "support_cmd_step_max_deg";
-pub const KEY_GAP_MAX: &str = "support_gap_max_deg";
+use bowden_interfaces::model::keys::{
+    SUPPORT_CMD_MAX as KEY_CMD_MAX, SUPPORT_CMD_MIN as KEY_CMD_MIN, SUPPORT_CMD_STEP_MAX as KEY_CMD_STEP_MAX,
+    SUPPORT_GAP_MAX as KEY_GAP_MAX,
+};
 
 /// Quantile of |q_cmd − q_phy| taken as the largest gap: the vision estimate has rare
 /// outliers that are not hysteresis.

@@ -22,7 +22,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::arch::{Arch, Direction, ModelSpec, TcnBlock};
+use crate::arch::{Architecture, Direction, ModelSpec, TcnBlock};
 use crate::dataset::{fnv1a64_hex, Dataset};
 use crate::report::LearnError;
 use crate::train::{train, TrainConfig};
@@ -30,7 +30,7 @@ use crate::windows::{overall_rmse, PhySource, SplitConfig, WindowSet};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SweepConfig {
-    pub archs: Vec<Arch>,
+    pub archs: Vec<Architecture>,
     pub seq_lens: Vec<usize>,
     /// Seeds 0 .. seeds−1.
     pub seeds: u64,
@@ -51,7 +51,7 @@ pub struct SweepConfig {
 /// One configuration of the sweep.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 pub struct RunKey {
-    pub arch: Arch,
+    pub arch: Architecture,
     /// `None` for architectures without a TCN.
     pub tcn_block: Option<TcnBlock>,
     pub direction: Direction,
@@ -111,7 +111,7 @@ pub struct RunResult {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct GroupStats {
     pub model: String,
-    pub arch: Arch,
+    pub arch: Architecture,
     pub tcn_block: Option<TcnBlock>,
     pub direction: Direction,
     pub seq_len: usize,
@@ -1013,7 +1013,7 @@ mod tests {
 
     fn cfg() -> SweepConfig {
         SweepConfig {
-            archs: vec![Arch::Tcn, Arch::Fnn],
+            archs: vec![Architecture::Tcn, Architecture::Fnn],
             seq_lens: vec![8, 12],
             seeds: 2,
             directions: vec![Direction::Forward],

@@ -13,7 +13,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::adam::Adam;
-use crate::arch::{Arch, Direction, ModelSpec, TcnBlock};
+use crate::arch::{Architecture, Direction, ModelSpec, TcnBlock};
 #[cfg(feature = "candle")]
 use crate::candle_ref::CandleModel;
 use crate::helper::Helper;
@@ -49,7 +49,7 @@ impl std::str::FromStr for Backend {
 /// Everything that defines a training run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrainConfig {
-    pub arch: Arch,
+    pub arch: Architecture,
     pub direction: Direction,
     pub seq_len: usize,
     pub tcn_block: TcnBlock,
@@ -99,7 +99,7 @@ fn is_f32(p: &Precision) -> bool {
 
 impl TrainConfig {
     /// The paper's hyper-parameters for one architecture, direction and length.
-    pub fn paper(arch: Arch, direction: Direction, seq_len: usize, epochs: usize, seed: u64) -> Self {
+    pub fn paper(arch: Architecture, direction: Direction, seq_len: usize, epochs: usize, seed: u64) -> Self {
         Self {
             arch,
             direction,

@@ -80,8 +80,23 @@ pub struct JointsConfig {
 }
 
 /// Which hysteresis model the plant simulates (`family = "…"` at the top of the plant file).
-#[derive(Debug, Clone, Copy, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    Default,
+    Deserialize,
+    Serialize,
+    PartialEq,
+    Eq,
+    strum::EnumString,
+    strum::IntoStaticStr,
+    strum::Display,
+    strum::VariantNames,
+    strum::VariantArray,
+)]
 #[serde(rename_all = "kebab-case")]
+#[strum(serialize_all = "kebab-case")]
 pub enum FamilyKind {
     /// Cable space, rate-independent: capstan dead band + generalised Prandtl–Ishlinskii plays
     /// per cable (`[hysteresis]`). The default: files without `family` are this.
@@ -94,13 +109,9 @@ pub enum FamilyKind {
 }
 
 impl FamilyKind {
-    /// The spelling used in plant files.
-    pub fn name(self) -> &'static str {
-        match self {
-            FamilyKind::Capstan => "capstan",
-            FamilyKind::BoucWen => "bouc-wen",
-            FamilyKind::Lugre => "lugre",
-        }
+    /// The spelling in configs, reports and on the command line.
+    pub fn as_str(self) -> &'static str {
+        self.into()
     }
 
     /// The family's own table in a plant file.
@@ -490,7 +501,7 @@ impl PlantConfig {
                     format!(
                         "the [{}] table is required when family = \"{}\"",
                         kind.table(),
-                        kind.name()
+                        kind.as_str()
                     ),
                 ));
             }
@@ -500,8 +511,8 @@ impl PlantConfig {
                     format!(
                         "the [{}] table belongs to family \"{}\" but this file selects family = \"{}\"; remove the table or change `family`",
                         kind.table(),
-                        kind.name(),
-                        family.name()
+                        kind.as_str(),
+                        family.as_str()
                     ),
                 ));
             }

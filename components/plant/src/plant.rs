@@ -323,7 +323,7 @@ impl Plant {
             panic!(
                 "plant config `{}` selects family \"{}\" without its [{}] table (validate the config first)",
                 config.name,
-                kind.name(),
+                kind.as_str(),
                 kind.table()
             )
         };

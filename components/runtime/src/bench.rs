@@ -29,49 +29,53 @@ pub const VGA_FRAME_BYTES: usize = RgbdFrameHeader::payload_len_for(640, 480);
 pub const SMALL_FRAME_BYTES: usize = 64;
 
 /// What one IPC measurement exchanges, and how.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    strum::EnumString,
+    strum::IntoStaticStr,
+    strum::Display,
+    strum::VariantNames,
+    strum::VariantArray,
+)]
 pub enum IpcVariant {
     /// iceoryx2 API directly, `JointCommand` (240 B), busy polling.
+    #[strum(serialize = "raw-sample")]
     RawSample,
     /// bowden `Output`/`Input`, `JointCommand`, busy polling.
+    #[strum(serialize = "ports-sample")]
     PortsSample,
     /// iceoryx2 directly + event notifier/listener wake-up.
+    #[strum(serialize = "raw-sample-event")]
     RawSampleEvent,
     /// bowden ports + `Wakeup`/`Waiter` (the pipeline's event-driven path).
+    #[strum(serialize = "ports-sample-event")]
     PortsSampleEvent,
+    #[strum(serialize = "raw-frame-64B")]
     RawFrameSmall,
+    #[strum(serialize = "ports-frame-64B")]
     PortsFrameSmall,
+    #[strum(serialize = "raw-frame-640x480")]
     RawFrameVga,
+    #[strum(serialize = "ports-frame-640x480")]
     PortsFrameVga,
 }
 
 impl IpcVariant {
-    pub const ALL: [IpcVariant; 8] = [
-        IpcVariant::RawSample,
-        IpcVariant::PortsSample,
-        IpcVariant::RawSampleEvent,
-        IpcVariant::PortsSampleEvent,
-        IpcVariant::RawFrameSmall,
-        IpcVariant::PortsFrameSmall,
-        IpcVariant::RawFrameVga,
-        IpcVariant::PortsFrameVga,
-    ];
+    /// Every variant, in declaration order.
+    pub const ALL: &'static [IpcVariant] = <IpcVariant as strum::VariantArray>::VARIANTS;
 
-    pub fn name(self) -> &'static str {
-        match self {
-            IpcVariant::RawSample => "raw-sample",
-            IpcVariant::PortsSample => "ports-sample",
-            IpcVariant::RawSampleEvent => "raw-sample-event",
-            IpcVariant::PortsSampleEvent => "ports-sample-event",
-            IpcVariant::RawFrameSmall => "raw-frame-64B",
-            IpcVariant::PortsFrameSmall => "ports-frame-64B",
-            IpcVariant::RawFrameVga => "raw-frame-640x480",
-            IpcVariant::PortsFrameVga => "ports-frame-640x480",
-        }
+    /// The spelling in configs, reports and on the command line.
+    pub fn as_str(self) -> &'static str {
+        self.into()
     }
 
+    /// Parses the spelling of [`IpcVariant::as_str`].
     pub fn parse(s: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|v| v.name() == s)
+        s.parse().ok()
     }
 
     pub fn description(self) -> &'static str {
@@ -137,7 +141,7 @@ pub enum BenchError {
 
 fn ipc_err(v: IpcVariant, m: impl std::fmt::Display) -> BenchError {
     BenchError::Ipc {
-        variant: v.name(),
+        variant: v.as_str(),
         message: m.to_string(),
     }
 }
@@ -495,7 +499,7 @@ impl PingPong {
             }
             Peer::Process(exe) => {
                 let mut cmd = std::process::Command::new(exe);
-                cmd.args(["bench", "ipc-peer", "--variant", v.name(), "--prefix", prefix])
+                cmd.args(["bench", "ipc-peer", "--variant", v.as_str(), "--prefix", prefix])
                     .arg("--warmup")
                     .arg(warmup.to_string())
                     .arg("--expect")
@@ -691,7 +695,7 @@ pub fn ipc_bench(
         .iter()
         .zip(accs)
         .map(|(v, a)| IpcResult {
-            variant: v.name(),
+            variant: v.as_str(),
             description: v.description(),
             one_way: a.one_way.percentiles(),
             round_trip: a.rtt.percentiles(),

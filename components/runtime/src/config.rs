@@ -46,8 +46,22 @@ pub enum ConfigError {
 }
 
 /// Scheduling mode of a run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Deserialize,
+    Serialize,
+    strum::EnumString,
+    strum::IntoStaticStr,
+    strum::Display,
+    strum::VariantNames,
+    strum::VariantArray,
+)]
 #[serde(rename_all = "lowercase")]
+#[strum(serialize_all = "lowercase")]
 pub enum Mode {
     /// Simulated clock advanced by the launcher; bit-for-bit reproducible.
     Lockstep,
@@ -56,19 +70,14 @@ pub enum Mode {
 }
 
 impl Mode {
-    pub fn name(self) -> &'static str {
-        match self {
-            Mode::Lockstep => "lockstep",
-            Mode::Realtime => "realtime",
-        }
+    /// The spelling in configs, reports and on the command line.
+    pub fn as_str(self) -> &'static str {
+        self.into()
     }
 
+    /// Parses the spelling of [`Mode::as_str`].
     pub fn parse(s: &str) -> Option<Mode> {
-        match s {
-            "lockstep" => Some(Mode::Lockstep),
-            "realtime" => Some(Mode::Realtime),
-            _ => None,
-        }
+        s.parse().ok()
     }
 }
 
@@ -408,7 +417,7 @@ impl Overrides {
     pub fn to_args(&self) -> Vec<String> {
         let mut a = Vec::new();
         if let Some(m) = self.mode {
-            a.extend(["--mode".to_string(), m.name().to_string()]);
+            a.extend(["--mode".to_string(), m.as_str().to_string()]);
         }
         if let Some(p) = &self.prefix {
             a.extend(["--prefix".to_string(), p.clone()]);

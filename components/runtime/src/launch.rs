@@ -91,7 +91,7 @@ impl Supervisor {
         let env = vec![
             ("BOWDEN_PREFIX".to_string(), ipc.prefix.clone()),
             ("BOWDEN_NAMESPACE".to_string(), ipc.namespace.clone()),
-            ("BOWDEN_MODE".to_string(), cfg.mode().name().to_string()),
+            ("BOWDEN_MODE".to_string(), cfg.mode().as_str().to_string()),
             ("BOWDEN_CONFIG".to_string(), cfg.origin.arg()),
             ("BOWDEN_PERIOD_US".to_string(), cfg.runtime.period_us.to_string()),
         ];

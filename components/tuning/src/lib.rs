@@ -186,7 +186,7 @@ fn finite(v: &[f64]) -> bool {
 fn val_rmse(model: &Model, ds: &Dataset, val: &[usize], max: usize) -> (f64, usize) {
     let j = ds.joints;
     let l = model.seq_len();
-    let forward = model.metadata().direction == bowden_compensator::contract::Direction::Forward;
+    let forward = model.metadata().direction == bowden_learning::Direction::Forward;
     type Column = fn(&Dataset, usize) -> &[f64];
     let (input, target): (Column, Column) = if forward {
         (Dataset::cmd, Dataset::phy)
@@ -295,7 +295,7 @@ impl Replay<'_> {
     }
 }
 
-fn load(paths: &[PathBuf], want: bowden_compensator::contract::Direction) -> Result<Vec<Model>, TuneError> {
+fn load(paths: &[PathBuf], want: bowden_learning::Direction) -> Result<Vec<Model>, TuneError> {
     paths
         .iter()
         .map(|p| {
@@ -322,7 +322,7 @@ pub fn tune(
     opts: &TuneOptions,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<TuneOutcome, TuneError> {
-    use bowden_compensator::contract::Direction as D;
+    use bowden_learning::Direction as D;
     if forward.is_empty() {
         return Err(TuneError::NoModels("forward"));
     }
@@ -464,7 +464,7 @@ pub fn tune(
         candidates.push(Candidate {
             forward: fi,
             inverse: ii,
-            mode: mode.name().to_string(),
+            mode: mode.as_str().to_string(),
             prior_weight: mu,
             judged_rmse_deg: mean(&r.judged),
             self_rmse_deg: r.self_rated,
@@ -521,7 +521,7 @@ pub fn tune(
         uncalibrated_judged_rmse_deg: uncal,
         candidates,
         chosen,
-        chosen_mode: config.mode.name().to_string(),
+        chosen_mode: config.mode.as_str().to_string(),
     };
     Ok(TuneOutcome {
         config,
@@ -552,7 +552,7 @@ pub fn config_toml(
     let mut doc: toml::Table = toml::from_str(base_text).map_err(|e| TuneError::BaseConfig(e.to_string()))?;
     let c = &outcome.config;
     let r = &outcome.report;
-    doc.insert("mode".into(), Value::String(c.mode.name().into()));
+    doc.insert("mode".into(), Value::String(c.mode.as_str().into()));
     doc.insert("model_fwd".into(), Value::String(fwd_name.into()));
     doc.insert("model_inv".into(), Value::String(inv_name.into()));
     let table = |doc: &mut toml::Table, name: &str| -> toml::Table {

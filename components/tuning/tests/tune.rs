@@ -3,14 +3,14 @@
 
 use bowden_compensator::{ControllerConfig, Mode};
 use bowden_kinematics::Robot;
-use bowden_learning::arch::{Arch, Direction};
+use bowden_learning::arch::{Architecture, Direction};
 use bowden_learning::synthetic::hysteretic_dataset;
 use bowden_learning::train::{train, TrainConfig};
 use bowden_learning::windows::{PhySource, SplitConfig, WindowSet};
 use bowden_tuning::{command_spacing_deg, config_toml, tune, TuneError, TuneOptions};
 use std::path::{Path, PathBuf};
 
-fn model(ds: &bowden_learning::Dataset, arch: Arch, d: Direction, dir: &Path) -> PathBuf {
+fn model(ds: &bowden_learning::Dataset, arch: Architecture, d: Direction, dir: &Path) -> PathBuf {
     let l = 20;
     let w = WindowSet::build(ds, d, l, SplitConfig::default(), PhySource::Vision).unwrap();
     let mut cfg = TrainConfig::paper(arch, d, l, 3, 1);
@@ -35,10 +35,10 @@ fn settings_come_from_validation_data_and_reproduce_bit_for_bit() {
     // clamp handles exactly as on a robot.
     let ds = hysteretic_dataset(1500, 5, 9);
     let fwd = vec![
-        model(&ds, Arch::Tcn, Direction::Forward, tmp.path()),
-        model(&ds, Arch::Fnn, Direction::Forward, tmp.path()),
+        model(&ds, Architecture::Tcn, Direction::Forward, tmp.path()),
+        model(&ds, Architecture::Fnn, Direction::Forward, tmp.path()),
     ];
-    let inv = vec![model(&ds, Arch::Tcn, Direction::Inverse, tmp.path())];
+    let inv = vec![model(&ds, Architecture::Tcn, Direction::Inverse, tmp.path())];
     let (text, base) = base();
     let robot = Robot::paper_default();
     let opts = TuneOptions {
@@ -70,7 +70,7 @@ fn settings_come_from_validation_data_and_reproduce_bit_for_bit() {
             let best = &r.candidates[k];
             assert!(r.candidates.iter().all(|c| c.judged_rmse_deg >= best.judged_rmse_deg));
             assert!(best.judged_rmse_deg < r.uncalibrated_judged_rmse_deg[best.forward]);
-            assert_eq!(a.config.mode.name(), best.mode);
+            assert_eq!(a.config.mode.as_str(), best.mode);
         }
         None => assert_eq!(a.config.mode, Mode::Uncalibrated),
     }
@@ -133,8 +133,8 @@ fn settings_come_from_validation_data_and_reproduce_bit_for_bit() {
 fn wrong_inputs_are_named() {
     let tmp = tempfile::tempdir().unwrap();
     let ds = hysteretic_dataset(600, 5, 2);
-    let f = model(&ds, Arch::Fnn, Direction::Forward, tmp.path());
-    let i = model(&ds, Arch::Fnn, Direction::Inverse, tmp.path());
+    let f = model(&ds, Architecture::Fnn, Direction::Forward, tmp.path());
+    let i = model(&ds, Architecture::Fnn, Direction::Inverse, tmp.path());
     let (_, base) = base();
     let robot = Robot::paper_default();
     let opts = TuneOptions::default();

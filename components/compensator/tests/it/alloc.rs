@@ -84,7 +84,7 @@ fn step_does_not_allocate() {
     targets.extend(random_trajectory(&robot, 150, 0.2, 5));
 
     let cfg = ControllerConfig::shipped();
-    for mode in Mode::ALL {
+    for &mode in Mode::ALL {
         let mut c = cfg.clone();
         c.mode = mode;
         let mut comp = Compensator::from_config(&c, &robot).unwrap();

@@ -161,7 +161,7 @@ fn bounds_stop_the_loop() {
 fn lockstep_runs_are_bit_identical() {
     let robot = Robot::paper_default();
     let t = dataset_targets(120, 5);
-    for mode in Mode::ALL {
+    for &mode in Mode::ALL {
         let run = || {
             let mut comp = Compensator::from_config(&cfg(mode), &robot).unwrap();
             let mut out = StepOutput::default();

@@ -2,8 +2,8 @@
 //! through tract and through the incremental evaluator; incremental == tract on random windows.
 
 use crate::common;
-use bowden_compensator::contract::{Architecture, Direction, TcnBlock};
 use bowden_compensator::{LoadOptions, Model};
+use bowden_interfaces::model::{Architecture, Direction, TcnBlock};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

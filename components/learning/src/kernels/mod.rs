@@ -11,14 +11,30 @@ pub mod lstm;
 pub mod simd;
 pub mod tcn;
 
-use crate::arch::{Arch, ModelSpec, ParamLayout, FNN_HIDDEN, HEAD_HIDDEN, LSTM_HIDDEN};
+use crate::arch::{Architecture, ModelSpec, ParamLayout, FNN_HIDDEN, HEAD_HIDDEN, LSTM_HIDDEN};
 pub use bowden_fastmath::AVec;
 use lstm::{LstmDims, LstmGrads, LstmParamIdx, LstmPrepared, LstmWork};
 use tcn::{TcnDims, TcnParamIdx, TcnScratch};
 
 /// Arithmetic of the training products.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    Default,
+    PartialEq,
+    Eq,
+    Hash,
+    serde::Serialize,
+    serde::Deserialize,
+    strum::EnumString,
+    strum::IntoStaticStr,
+    strum::Display,
+    strum::VariantNames,
+    strum::VariantArray,
+)]
 #[serde(rename_all = "kebab-case")]
+#[strum(serialize_all = "kebab-case")]
 pub enum Precision {
     /// Everything in f32 (the default; what the tests hold to candle's autograd).
     #[default]
@@ -30,28 +46,9 @@ pub enum Precision {
 }
 
 impl Precision {
-    pub fn name(self) -> &'static str {
-        match self {
-            Precision::F32 => "f32",
-            Precision::Bf16 => "bf16",
-        }
-    }
-}
-
-impl std::fmt::Display for Precision {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl std::str::FromStr for Precision {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "f32" => Ok(Precision::F32),
-            "bf16" => Ok(Precision::Bf16),
-            _ => Err(format!("precision {s:?} is not f32 or bf16")),
-        }
+    /// The spelling in configs, reports and on the command line.
+    pub fn as_str(self) -> &'static str {
+        self.into()
     }
 }
 
@@ -152,13 +149,15 @@ impl Net {
             n_out,
         };
         let mlp = match spec.arch {
-            Arch::Lstm | Arch::TcnLstm => vec![lin("fc.0", LSTM_HIDDEN, HEAD_HIDDEN), lin("fc.2", HEAD_HIDDEN, j)],
-            Arch::Fnn => vec![
+            Architecture::Lstm | Architecture::TcnLstm => {
+                vec![lin("fc.0", LSTM_HIDDEN, HEAD_HIDDEN), lin("fc.2", HEAD_HIDDEN, j)]
+            }
+            Architecture::Fnn => vec![
                 lin("net.1", j * spec.seq_len, FNN_HIDDEN),
                 lin("net.3", FNN_HIDDEN, FNN_HIDDEN),
                 lin("net.5", FNN_HIDDEN, j),
             ],
-            Arch::Tcn => Vec::new(),
+            Architecture::Tcn => Vec::new(),
         };
         Self {
             spec,
@@ -256,7 +255,7 @@ impl Net {
             tcn::forward(d, params, idx, x, b, &mut ws.tcn_cache);
         }
         match self.spec.arch {
-            Arch::Tcn => {
+            Architecture::Tcn => {
                 let Some((d, _)) = &self.tcn else { unreachable!() };
                 for row in 0..b {
                     for ch in 0..j {
@@ -264,7 +263,7 @@ impl Net {
                     }
                 }
             }
-            Arch::Lstm | Arch::TcnLstm => {
+            Architecture::Lstm | Architecture::TcnLstm => {
                 let Some((ld, _)) = &self.lstm else { unreachable!() };
                 let Some(work) = ws.lstm.as_mut() else { unreachable!() };
                 // LSTM input [T][b][J]: the window itself, or the TCN's feature sequence.
@@ -283,7 +282,7 @@ impl Net {
                 mlp_forward(&self.mlp, params, prep, h_last, b, &mut ws.acts);
                 ws.out[..b * j].copy_from_slice(&ws.acts[self.mlp.len() - 1][..b * j]);
             }
-            Arch::Fnn => {
+            Architecture::Fnn => {
                 mlp_forward(&self.mlp, params, prep, &x[..b * l * j], b, &mut ws.acts);
                 ws.out[..b * j].copy_from_slice(&ws.acts[self.mlp.len() - 1][..b * j]);
             }
@@ -319,7 +318,7 @@ impl Net {
             *d = scale * e;
         }
         match self.spec.arch {
-            Arch::Tcn => {
+            Architecture::Tcn => {
                 let Some((d, idx)) = &self.tcn else { unreachable!() };
                 let Some(scratch) = ws.tcn_scratch.as_mut() else {
                     unreachable!()
@@ -332,7 +331,7 @@ impl Net {
                     tcn::backward_window(d, params, idx, &ws.tcn_cache, row, &ws.dz_out, scratch, grad);
                 }
             }
-            Arch::Lstm | Arch::TcnLstm => {
+            Architecture::Lstm | Architecture::TcnLstm => {
                 let Some((ld, lidx)) = &self.lstm else { unreachable!() };
                 let Some(work) = ws.lstm.as_mut() else { unreachable!() };
                 let h_last = work.h_last(ld, b);
@@ -384,7 +383,7 @@ impl Net {
                     }
                 }
             }
-            Arch::Fnn => {
+            Architecture::Fnn => {
                 mlp_backward(
                     &self.mlp,
                     params,

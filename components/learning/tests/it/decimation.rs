@@ -2,7 +2,7 @@
 //! robot could have been commanded, and its target what a rate-independent hysteresis would
 //! have done after it; validation never leaks in; the support records the larger steps.
 
-use bowden_learning::arch::{Arch, Direction};
+use bowden_learning::arch::{Architecture, Direction};
 use bowden_learning::dataset::Dataset;
 use bowden_learning::support::DataSupport;
 use bowden_learning::train::{train, TrainConfig};
@@ -184,7 +184,7 @@ fn the_support_records_the_steps_of_the_decimated_histories() {
 fn training_refuses_windows_decimated_otherwise_than_its_config() {
     let ds = eq16_play_dataset(60, 7);
     let w = WindowSet::build(&ds, Direction::Forward, 10, SplitConfig::default(), PhySource::Vision).unwrap();
-    let mut cfg = TrainConfig::paper(Arch::Tcn, Direction::Forward, 10, 1, 0);
+    let mut cfg = TrainConfig::paper(Architecture::Tcn, Direction::Forward, 10, 1, 0);
     cfg.decimation = 4;
     let e = train(&w, &cfg, None).unwrap_err().to_string();
     assert!(e.contains("decimated"), "{e}");

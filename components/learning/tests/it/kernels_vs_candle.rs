@@ -1,7 +1,7 @@
 //! The fused kernels against candle's autograd: same outputs, same gradients, for every
 //! architecture and both TCN block variants.
 
-use bowden_learning::arch::{Arch, ModelSpec, TcnBlock};
+use bowden_learning::arch::{Architecture, ModelSpec, TcnBlock};
 use bowden_learning::candle_ref::CandleModel;
 use bowden_learning::kernels::Net;
 use rand::{Rng, SeedableRng};
@@ -75,45 +75,45 @@ fn check(spec: ModelSpec, b: usize, seed: u64) {
 
 #[test]
 fn tcn_relu_linear_matches_candle() {
-    check(ModelSpec::new(Arch::Tcn, 20, 5, TcnBlock::ReluLinear), 6, 1);
+    check(ModelSpec::new(Architecture::Tcn, 20, 5, TcnBlock::ReluLinear), 6, 1);
 }
 
 #[test]
 fn tcn_relu_relu_matches_candle() {
-    check(ModelSpec::new(Arch::Tcn, 20, 5, TcnBlock::ReluRelu), 6, 2);
+    check(ModelSpec::new(Architecture::Tcn, 20, 5, TcnBlock::ReluRelu), 6, 2);
 }
 
 #[test]
 fn tcn_paper_length_matches_candle() {
-    check(ModelSpec::new(Arch::Tcn, 80, 5, TcnBlock::ReluLinear), 3, 3);
+    check(ModelSpec::new(Architecture::Tcn, 80, 5, TcnBlock::ReluLinear), 3, 3);
 }
 
 #[test]
 fn lstm_matches_candle() {
-    check(ModelSpec::new(Arch::Lstm, 12, 5, TcnBlock::ReluLinear), 5, 4);
+    check(ModelSpec::new(Architecture::Lstm, 12, 5, TcnBlock::ReluLinear), 5, 4);
 }
 
 #[test]
 fn tcn_lstm_matches_candle() {
-    check(ModelSpec::new(Arch::TcnLstm, 12, 5, TcnBlock::ReluRelu), 4, 5);
-    check(ModelSpec::new(Arch::TcnLstm, 10, 3, TcnBlock::ReluLinear), 3, 6);
+    check(ModelSpec::new(Architecture::TcnLstm, 12, 5, TcnBlock::ReluRelu), 4, 5);
+    check(ModelSpec::new(Architecture::TcnLstm, 10, 3, TcnBlock::ReluLinear), 3, 6);
 }
 
 #[test]
 fn fnn_matches_candle() {
-    check(ModelSpec::new(Arch::Fnn, 16, 5, TcnBlock::ReluLinear), 7, 7);
+    check(ModelSpec::new(Architecture::Fnn, 16, 5, TcnBlock::ReluLinear), 7, 7);
 }
 
 #[test]
 fn odd_joint_count_matches_candle() {
     // A da Vinci wrist has 3 cable-driven joints: nothing assumes J = 5.
-    check(ModelSpec::new(Arch::Tcn, 33, 3, TcnBlock::ReluLinear), 5, 8);
-    check(ModelSpec::new(Arch::Lstm, 7, 3, TcnBlock::ReluLinear), 9, 9);
+    check(ModelSpec::new(Architecture::Tcn, 33, 3, TcnBlock::ReluLinear), 5, 8);
+    check(ModelSpec::new(Architecture::Lstm, 7, 3, TcnBlock::ReluLinear), 9, 9);
 }
 
 #[test]
 fn shards_sum_to_the_full_batch_gradient() {
-    let spec = ModelSpec::new(Arch::TcnLstm, 10, 5, TcnBlock::ReluLinear);
+    let spec = ModelSpec::new(Architecture::TcnLstm, 10, 5, TcnBlock::ReluLinear);
     let mut rng = ChaCha8Rng::seed_from_u64(11);
     let params = spec.init_params(11);
     let b = 8;
@@ -152,9 +152,13 @@ fn shards_sum_to_the_full_batch_gradient() {
 fn lstm_mixed_precision_gradients_follow_f32() {
     use bowden_learning::kernels::Precision;
     for (spec, b, seed) in [
-        (ModelSpec::new(Arch::Lstm, 80, 5, TcnBlock::ReluLinear), 16, 21),
-        (ModelSpec::new(Arch::Lstm, 9, 3, TcnBlock::ReluLinear), 5, 22),
-        (ModelSpec::new(Arch::TcnLstm, 12, 5, TcnBlock::ReluLinear), 4, 23),
+        (ModelSpec::new(Architecture::Lstm, 80, 5, TcnBlock::ReluLinear), 16, 21),
+        (ModelSpec::new(Architecture::Lstm, 9, 3, TcnBlock::ReluLinear), 5, 22),
+        (
+            ModelSpec::new(Architecture::TcnLstm, 12, 5, TcnBlock::ReluLinear),
+            4,
+            23,
+        ),
     ] {
         let tag = format!("{} L={} b={b}", spec.arch, spec.seq_len);
         let mut rng = ChaCha8Rng::seed_from_u64(seed);

@@ -4,7 +4,7 @@
 
 use std::path::PathBuf;
 
-use bowden_learning::arch::{Arch, Direction, ModelSpec, TcnBlock};
+use bowden_learning::arch::{Architecture, Direction, ModelSpec, TcnBlock};
 use bowden_learning::onnx::{read_metadata, ModelFile, TractModel, INPUT_NAME, OUTPUT_NAME};
 use bowden_learning::windows::Normaliser;
 use prost::Message;
@@ -47,12 +47,12 @@ fn random_model(spec: ModelSpec, seed: u64) -> ModelFile {
 fn export_round_trip_every_architecture() {
     let dir = tempfile::tempdir().unwrap();
     let cases = [
-        ModelSpec::new(Arch::Tcn, 80, 5, TcnBlock::ReluLinear),
-        ModelSpec::new(Arch::Tcn, 50, 5, TcnBlock::ReluRelu),
-        ModelSpec::new(Arch::Tcn, 10, 3, TcnBlock::ReluLinear),
-        ModelSpec::new(Arch::Lstm, 24, 5, TcnBlock::ReluLinear),
-        ModelSpec::new(Arch::TcnLstm, 24, 5, TcnBlock::ReluRelu),
-        ModelSpec::new(Arch::Fnn, 30, 5, TcnBlock::ReluLinear),
+        ModelSpec::new(Architecture::Tcn, 80, 5, TcnBlock::ReluLinear),
+        ModelSpec::new(Architecture::Tcn, 50, 5, TcnBlock::ReluRelu),
+        ModelSpec::new(Architecture::Tcn, 10, 3, TcnBlock::ReluLinear),
+        ModelSpec::new(Architecture::Lstm, 24, 5, TcnBlock::ReluLinear),
+        ModelSpec::new(Architecture::TcnLstm, 24, 5, TcnBlock::ReluRelu),
+        ModelSpec::new(Architecture::Fnn, 30, 5, TcnBlock::ReluLinear),
     ];
     let mut rng = ChaCha8Rng::seed_from_u64(99);
     for (i, spec) in cases.into_iter().enumerate() {
@@ -153,7 +153,7 @@ fn exported_tcn_follows_the_pytorch_contract() {
     let fixture = fixtures_dir().join("tcn-linear2_forward_L80_J5_s0.onnx");
     let tmp = tempfile::tempdir().unwrap();
     let ours = tmp.path().join("tcn.onnx");
-    let mut m = random_model(ModelSpec::new(Arch::Tcn, 80, 5, TcnBlock::ReluLinear), 5);
+    let mut m = random_model(ModelSpec::new(Architecture::Tcn, 80, 5, TcnBlock::ReluLinear), 5);
     m.direction = Direction::Forward;
     m.save(&ours).unwrap();
 
@@ -186,7 +186,7 @@ fn corrupt_onnx_gives_a_named_error() {
     std::fs::write(&p, b"\xff\xff\xff\xff not a protobuf").unwrap();
     let e = ModelFile::load(&p).unwrap_err();
     assert!(e.to_string().contains("junk.onnx"), "{e}");
-    let m = random_model(ModelSpec::new(Arch::Tcn, 20, 5, TcnBlock::ReluLinear), 1);
+    let m = random_model(ModelSpec::new(Architecture::Tcn, 20, 5, TcnBlock::ReluLinear), 1);
     let mut proto = m.to_proto();
     proto.metadata_props.retain(|p| p.key != "seq_len");
     std::fs::write(&p, proto.encode_to_vec()).unwrap();

@@ -4,7 +4,7 @@
 use bowden_learning::report::plot_loss;
 use bowden_learning::sweep::{plot_sweep, GroupStats, SweepConfig, SweepSummary};
 use bowden_learning::windows::{PhySource, SplitConfig};
-use bowden_learning::{Arch, Direction, TcnBlock, TrainReport};
+use bowden_learning::{Architecture, Direction, TcnBlock, TrainReport};
 
 /// plotters draws an in-chart legend on a translucent white box.
 const LEGEND_BOX: &str = r#"opacity="0.8""#;
@@ -41,7 +41,7 @@ fn loss_plot_legend_is_a_strip_above_the_panels() {
 
 #[test]
 fn sweep_plot_legend_is_one_strip_with_one_colour_per_model() {
-    let group = |model: &str, arch: Arch, direction: Direction, seq_len: usize, rmse: f64| GroupStats {
+    let group = |model: &str, arch: Architecture, direction: Direction, seq_len: usize, rmse: f64| GroupStats {
         model: model.into(),
         arch,
         tcn_block: arch.has_tcn().then_some(TcnBlock::ReluLinear),
@@ -57,16 +57,16 @@ fn sweep_plot_legend_is_one_strip_with_one_colour_per_model() {
     let mut groups = Vec::new();
     for d in [Direction::Forward, Direction::Inverse] {
         for (k, l) in [10usize, 50, 80].into_iter().enumerate() {
-            groups.push(group("tcn", Arch::Tcn, d, l, 4.0 - k as f64));
-            groups.push(group("fnn", Arch::Fnn, d, l, 6.0 + k as f64));
+            groups.push(group("tcn", Architecture::Tcn, d, l, 4.0 - k as f64));
+            groups.push(group("fnn", Architecture::Fnn, d, l, 6.0 + k as f64));
         }
     }
     // LSTM only in the inverse panel: still the same colour for the others.
-    groups.push(group("lstm", Arch::Lstm, Direction::Inverse, 80, 3.0));
+    groups.push(group("lstm", Architecture::Lstm, Direction::Inverse, 80, 3.0));
     let summary = SweepSummary {
         format: "test".into(),
         config: SweepConfig {
-            archs: vec![Arch::Tcn, Arch::Fnn, Arch::Lstm],
+            archs: vec![Architecture::Tcn, Architecture::Fnn, Architecture::Lstm],
             seq_lens: vec![10, 50, 80],
             seeds: 2,
             directions: vec![Direction::Forward, Direction::Inverse],

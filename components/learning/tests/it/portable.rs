@@ -2,7 +2,7 @@
 //! process-wide: same outputs and gradients as candle, and finite differences agree with
 //! the fused gradient independently of candle.
 
-use bowden_learning::arch::{Arch, ModelSpec, TcnBlock};
+use bowden_learning::arch::{Architecture, ModelSpec, TcnBlock};
 use bowden_learning::candle_ref::CandleModel;
 use bowden_learning::kernels::{simd, Net};
 use rand::{Rng, SeedableRng};
@@ -41,10 +41,10 @@ fn portable_kernels_match_candle_and_finite_differences() {
     simd::force_portable(true);
     assert!(!simd::has_avx512());
     for spec in [
-        ModelSpec::new(Arch::Tcn, 20, 5, TcnBlock::ReluRelu),
-        ModelSpec::new(Arch::Lstm, 9, 5, TcnBlock::ReluLinear),
-        ModelSpec::new(Arch::TcnLstm, 9, 4, TcnBlock::ReluLinear),
-        ModelSpec::new(Arch::Fnn, 12, 5, TcnBlock::ReluLinear),
+        ModelSpec::new(Architecture::Tcn, 20, 5, TcnBlock::ReluRelu),
+        ModelSpec::new(Architecture::Lstm, 9, 5, TcnBlock::ReluLinear),
+        ModelSpec::new(Architecture::TcnLstm, 9, 4, TcnBlock::ReluLinear),
+        ModelSpec::new(Architecture::Fnn, 12, 5, TcnBlock::ReluLinear),
     ] {
         let b = 4;
         let (params, x, y) = setup(spec, b, 21);

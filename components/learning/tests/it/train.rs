@@ -1,7 +1,7 @@
 //! Training: paper parameter counts and block counts, the split, learning, determinism,
 //! and the candle backend agreeing with the fused one.
 
-use bowden_learning::arch::{tcn_num_blocks, Arch, Direction, ModelSpec, TcnBlock};
+use bowden_learning::arch::{tcn_num_blocks, Architecture, Direction, ModelSpec, TcnBlock};
 use bowden_learning::synthetic::hysteretic_dataset;
 use bowden_learning::train::{train, Backend, TrainConfig};
 use bowden_learning::windows::{PhySource, SplitConfig, WindowSet};
@@ -9,13 +9,16 @@ use bowden_learning::windows::{PhySource, SplitConfig, WindowSet};
 #[test]
 fn paper_parameter_counts_at_l80_j5() {
     let count = |a| ModelSpec::new(a, 80, 5, TcnBlock::ReluLinear).param_count();
-    assert_eq!(count(Arch::Tcn), 800);
-    assert_eq!(count(Arch::Lstm), 77_701);
-    assert_eq!(count(Arch::TcnLstm), 78_501);
+    assert_eq!(count(Architecture::Tcn), 800);
+    assert_eq!(count(Architecture::Lstm), 77_701);
+    assert_eq!(count(Architecture::TcnLstm), 78_501);
     // FNN 5L → 128 → 128 → 5 (the fixture README's 68,485).
-    assert_eq!(count(Arch::Fnn), 68_485);
+    assert_eq!(count(Architecture::Fnn), 68_485);
     // Both block variants have the same parameters.
-    assert_eq!(ModelSpec::new(Arch::Tcn, 80, 5, TcnBlock::ReluRelu).param_count(), 800);
+    assert_eq!(
+        ModelSpec::new(Architecture::Tcn, 80, 5, TcnBlock::ReluRelu).param_count(),
+        800
+    );
 }
 
 #[test]
@@ -23,7 +26,7 @@ fn eq20_block_counts_for_the_paper_lengths() {
     let blocks: Vec<usize> = [10, 50, 65, 80, 100, 120].into_iter().map(tcn_num_blocks).collect();
     assert_eq!(blocks, vec![2, 4, 5, 5, 5, 5]);
     assert_eq!(
-        ModelSpec::new(Arch::Tcn, 50, 5, TcnBlock::ReluLinear).param_count(),
+        ModelSpec::new(Architecture::Tcn, 50, 5, TcnBlock::ReluLinear).param_count(),
         4 * 160
     );
 }
@@ -82,7 +85,7 @@ fn windows_pad_with_zero_degrees_and_normalise_inside() {
     assert_eq!(w.target(5)[1], w.norm_out.apply(1, ds.q_cmd_deg[5 * 3 + 1]));
 }
 
-fn small_config(arch: Arch, epochs: usize) -> TrainConfig {
+fn small_config(arch: Architecture, epochs: usize) -> TrainConfig {
     let mut cfg = TrainConfig::paper(arch, Direction::Forward, 16, epochs, 7);
     cfg.threads = 2;
     cfg
@@ -92,7 +95,7 @@ fn small_config(arch: Arch, epochs: usize) -> TrainConfig {
 fn short_training_lowers_validation_loss() {
     let ds = hysteretic_dataset(2500, 5, 3);
     let w = WindowSet::build(&ds, Direction::Forward, 16, SplitConfig::default(), PhySource::Vision).unwrap();
-    for arch in [Arch::Tcn, Arch::Fnn] {
+    for arch in [Architecture::Tcn, Architecture::Fnn] {
         let out = train(&w, &small_config(arch, 6), None).unwrap();
         let first = &out.epochs[0];
         let best = out.best();
@@ -118,7 +121,7 @@ fn short_training_lowers_validation_loss() {
 fn lstm_learns_too() {
     let ds = hysteretic_dataset(1200, 5, 4);
     let w = WindowSet::build(&ds, Direction::Forward, 8, SplitConfig::default(), PhySource::Vision).unwrap();
-    let mut cfg = TrainConfig::paper(Arch::Lstm, Direction::Forward, 8, 4, 1);
+    let mut cfg = TrainConfig::paper(Architecture::Lstm, Direction::Forward, 8, 4, 1);
     cfg.threads = 2;
     let out = train(&w, &cfg, None).unwrap();
     assert!(
@@ -133,7 +136,7 @@ fn lstm_learns_too() {
 fn same_seed_same_bits_whatever_the_thread_count() {
     let ds = hysteretic_dataset(1500, 5, 5);
     let w = WindowSet::build(&ds, Direction::Inverse, 12, SplitConfig::default(), PhySource::Vision).unwrap();
-    let mut cfg = TrainConfig::paper(Arch::TcnLstm, Direction::Inverse, 12, 2, 9);
+    let mut cfg = TrainConfig::paper(Architecture::TcnLstm, Direction::Inverse, 12, 2, 9);
     cfg.threads = 1;
     let a = train(&w, &cfg, None).unwrap();
     cfg.threads = 2;
@@ -152,7 +155,7 @@ fn same_seed_same_bits_whatever_the_thread_count() {
 fn mixed_precision_same_bits_whatever_the_thread_count() {
     let ds = hysteretic_dataset(1500, 5, 5);
     let w = WindowSet::build(&ds, Direction::Inverse, 12, SplitConfig::default(), PhySource::Vision).unwrap();
-    for arch in [Arch::Lstm, Arch::TcnLstm] {
+    for arch in [Architecture::Lstm, Architecture::TcnLstm] {
         let mut cfg = TrainConfig::paper(arch, Direction::Inverse, 12, 2, 9);
         cfg.precision = bowden_learning::kernels::Precision::Bf16;
         cfg.threads = 1;
@@ -183,7 +186,7 @@ fn mixed_precision_same_bits_whatever_the_thread_count() {
 fn early_stopping_stops() {
     let ds = hysteretic_dataset(800, 5, 6);
     let w = WindowSet::build(&ds, Direction::Forward, 10, SplitConfig::default(), PhySource::Vision).unwrap();
-    let mut cfg = small_config(Arch::Tcn, 200);
+    let mut cfg = small_config(Architecture::Tcn, 200);
     cfg.seq_len = 10;
     cfg.lr = 0.05; // large enough to stall quickly
     cfg.early_stop = Some(3);
@@ -196,7 +199,7 @@ fn early_stopping_stops() {
 fn candle_backend_follows_the_same_trajectory() {
     // Same init, same batches: after a few Adam steps the two backends agree closely.
     let ds = hysteretic_dataset(300, 5, 8);
-    for arch in [Arch::Tcn, Arch::Lstm] {
+    for arch in [Architecture::Tcn, Architecture::Lstm] {
         let l = 6;
         let w = WindowSet::build(&ds, Direction::Forward, l, SplitConfig::default(), PhySource::Vision).unwrap();
         let mut cfg = TrainConfig::paper(arch, Direction::Forward, l, 1, 3);
@@ -234,7 +237,7 @@ fn an_anchored_fine_tune_stays_nearer_its_start() {
         )
         .unwrap()
     };
-    let start = train(&windows(1500, 3), &small_config(Arch::Tcn, 4), None)
+    let start = train(&windows(1500, 3), &small_config(Architecture::Tcn, 4), None)
         .unwrap()
         .model;
     // Another unit of the same design: its data under the start's normalisation.
@@ -248,7 +251,7 @@ fn an_anchored_fine_tune_stays_nearer_its_start() {
             .sum::<f64>()
             .sqrt()
     };
-    let mut cfg = small_config(Arch::Tcn, 6);
+    let mut cfg = small_config(Architecture::Tcn, 6);
     cfg.lr = 3e-3;
     let free = fine_tune(&new, &cfg, &start, None).unwrap();
     cfg.anchor = 3.0;

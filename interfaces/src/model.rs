@@ -1,6 +1,7 @@
 //! The model contract (docs/architecture.md §5): what an ONNX hysteresis model must look like for bowden
-//! to load it. Writers of model files (the learning crate, PyTorch exporters) and this crate's
-//! loader share these names, so they are defined once, here.
+//! to load it. The writer of model files (`bowden-learning`, and PyTorch exporters that mirror
+//! it) and the loader (`bowden-compensator`) share these names, so they are defined once, here:
+//! a model file is an interface between tools as a sample is between processes.
 //!
 //! - one input, [`INPUT_NAME`], float32, shape `[1, L, J]`: the last L joint vectors in
 //!   degrees, oldest first (left zero padding, in degrees, while the history is short);
@@ -9,8 +10,9 @@
 //! - metadata props ([`keys`]): `direction`, `seq_len`, `joints`, `architecture`, `units`
 //!   and, for TCNs, `tcn_block`.
 
-use std::fmt;
+use serde::{Deserialize, Serialize};
 use std::str::FromStr;
+use strum::VariantNames;
 
 /// Name of the graph input: f32 `[1, seq_len, joints]`, degrees, oldest first.
 pub const INPUT_NAME: &str = "q_seq_deg";
@@ -21,7 +23,7 @@ pub const UNITS_DEG: &str = "deg";
 /// ONNX operator set the shipped files use (tract supports 9..=18).
 pub const RECOMMENDED_OPSET: i64 = 17;
 /// Largest number of joints a model may have (the sample types carry `MAX_JOINTS`).
-pub const MAX_JOINTS: usize = bowden_interfaces::MAX_JOINTS;
+pub const MAX_JOINTS: usize = crate::MAX_JOINTS;
 
 /// Metadata prop keys (`ModelProto.metadata_props`).
 pub mod keys {
@@ -59,85 +61,137 @@ pub enum ContractError {
     Invalid {
         key: &'static str,
         value: String,
-        expected: &'static str,
+        expected: String,
     },
 }
 
-macro_rules! string_enum {
-    ($(#[$m:meta])* $name:ident, $key:expr, { $($(#[$vm:meta])* $var:ident => $s:expr),+ $(,)? }) => {
-        $(#[$m])*
-        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-        pub enum $name { $($(#[$vm])* $var),+ }
-
-        impl $name {
-            /// Every value, in declaration order.
-            pub const ALL: &'static [$name] = &[$($name::$var),+];
-            /// The spelling used in model files and on the command line.
-            pub fn as_str(self) -> &'static str {
-                match self { $($name::$var => $s),+ }
-            }
-            /// Parses the spelling of `as_str`.
-            pub fn parse_prop(value: &str) -> Result<Self, ContractError> {
-                match value {
-                    $($s => Ok($name::$var),)+
-                    _ => Err(ContractError::Invalid {
-                        key: $key,
-                        value: value.to_string(),
-                        expected: concat!("one of:" $(, " ", $s)+),
-                    }),
-                }
-            }
-        }
-
-        impl fmt::Display for $name {
-            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-                f.write_str(self.as_str())
-            }
-        }
-
-        impl FromStr for $name {
-            type Err = ContractError;
-            fn from_str(s: &str) -> Result<Self, Self::Err> {
-                Self::parse_prop(s)
-            }
-        }
-    };
+/// The spellings of an enumeration of the contract, as `--help` and errors list them:
+/// `forward, inverse`.
+pub fn one_of<E: VariantNames>() -> String {
+    E::VARIANTS.join(", ")
 }
 
-string_enum!(
-    /// What a model predicts from what.
-    Direction, keys::DIRECTION, {
-        /// q_cmd history → q_phy (the plant's response).
-        Forward => "forward",
-        /// q_phy history → q_cmd (the command that produced it).
-        Inverse => "inverse",
-    }
-);
+/// Parses a metadata prop's value: an error naming the key and every accepted spelling.
+pub fn parse_prop<E: FromStr + VariantNames>(key: &'static str, value: &str) -> Result<E, ContractError> {
+    value.parse().map_err(|_| ContractError::Invalid {
+        key,
+        value: value.to_string(),
+        expected: format!("one of: {}", E::VARIANTS.join(" ")),
+    })
+}
 
-string_enum!(
-    /// The paper's four candidate architectures (§IV-C).
-    Architecture, keys::ARCHITECTURE, {
-        Fnn => "fnn",
-        Lstm => "lstm",
-        Tcn => "tcn",
-        TcnLstm => "tcn-lstm",
-    }
-);
+/// What a model predicts from what (paper eq. 17, 18).
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Hash,
+    PartialOrd,
+    Ord,
+    Serialize,
+    Deserialize,
+    strum::EnumString,
+    strum::IntoStaticStr,
+    strum::Display,
+    strum::VariantNames,
+    strum::VariantArray,
+)]
+#[serde(rename_all = "kebab-case")]
+#[strum(serialize_all = "kebab-case")]
+pub enum Direction {
+    /// q_cmd history → q_phy (the plant's response).
+    Forward,
+    /// q_phy history → q_cmd (the command that produced it).
+    Inverse,
+}
 
-string_enum!(
-    /// Where a TCN residual block has its ReLUs (docs/architecture.md §5).
-    TcnBlock, keys::TCN_BLOCK, {
-        /// ReLU after both convolutions: the paper read literally.
-        ReluRelu => "relu-relu",
-        /// ReLU between the convolutions only; the second one is linear (the default).
-        ReluLinear => "relu-linear",
+/// The paper's four candidate architectures (§IV-C).
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Hash,
+    PartialOrd,
+    Ord,
+    Serialize,
+    Deserialize,
+    strum::EnumString,
+    strum::IntoStaticStr,
+    strum::Display,
+    strum::VariantNames,
+    strum::VariantArray,
+)]
+#[serde(rename_all = "kebab-case")]
+#[strum(serialize_all = "kebab-case")]
+pub enum Architecture {
+    Fnn,
+    Lstm,
+    Tcn,
+    TcnLstm,
+}
+
+/// Where the ReLUs of a TCN residual block sit (docs/architecture.md §5).
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Hash,
+    PartialOrd,
+    Ord,
+    Default,
+    Serialize,
+    Deserialize,
+    strum::EnumString,
+    strum::IntoStaticStr,
+    strum::Display,
+    strum::VariantNames,
+    strum::VariantArray,
+)]
+#[serde(rename_all = "kebab-case")]
+#[strum(serialize_all = "kebab-case")]
+pub enum TcnBlock {
+    /// ReLU between the two convolutions only; the second is linear (the default: a block
+    /// can then add negative terms, so the output can fall below the input line).
+    #[default]
+    ReluLinear,
+    /// ReLU after both convolutions, the paper read literally.
+    ReluRelu,
+}
+
+impl Direction {
+    /// The spelling in model files, file names and on the command line.
+    pub fn as_str(self) -> &'static str {
+        self.into()
     }
-);
+}
+
+impl TcnBlock {
+    /// The spelling in model files, file names and on the command line.
+    pub fn as_str(self) -> &'static str {
+        self.into()
+    }
+}
 
 impl Architecture {
+    /// The spelling in model files, file names and on the command line.
+    pub fn as_str(self) -> &'static str {
+        self.into()
+    }
+
     /// True for architectures that contain a TCN and therefore need `tcn_block`.
     pub fn has_tcn(self) -> bool {
         matches!(self, Architecture::Tcn | Architecture::TcnLstm)
+    }
+
+    /// True for architectures that contain an LSTM.
+    pub fn has_lstm(self) -> bool {
+        matches!(self, Architecture::Lstm | Architecture::TcnLstm)
     }
 }
 
@@ -171,20 +225,20 @@ impl ModelMetadata {
     /// Parses and checks the props; `get(key)` returns the value of a prop if present.
     pub fn from_props<'a>(get: impl Fn(&str) -> Option<&'a str>) -> Result<Self, ContractError> {
         let req = |key: &'static str| get(key).ok_or(ContractError::Missing { key });
-        let direction = Direction::parse_prop(req(keys::DIRECTION)?)?;
+        let direction = parse_prop(keys::DIRECTION, req(keys::DIRECTION)?)?;
         let seq_len = parse_count(keys::SEQ_LEN, req(keys::SEQ_LEN)?, 1, 100_000)?;
         let joints = parse_count(keys::JOINTS, req(keys::JOINTS)?, 1, MAX_JOINTS)?;
-        let architecture = Architecture::parse_prop(req(keys::ARCHITECTURE)?)?;
+        let architecture: Architecture = parse_prop(keys::ARCHITECTURE, req(keys::ARCHITECTURE)?)?;
         let units = req(keys::UNITS)?;
         if units != UNITS_DEG {
             return Err(ContractError::Invalid {
                 key: keys::UNITS,
                 value: units.to_string(),
-                expected: "\"deg\"",
+                expected: "\"deg\"".into(),
             });
         }
         let tcn_block = if architecture.has_tcn() {
-            Some(TcnBlock::parse_prop(req(keys::TCN_BLOCK)?)?)
+            Some(parse_prop(keys::TCN_BLOCK, req(keys::TCN_BLOCK)?)?)
         } else {
             None
         };
@@ -227,7 +281,7 @@ impl Support {
             let bad = || ContractError::Invalid {
                 key,
                 value: s.to_string(),
-                expected: "one finite number of degrees per joint, comma-separated",
+                expected: "one finite number of degrees per joint, comma-separated".into(),
             };
             let mut out = [0.0; MAX_JOINTS];
             let mut n = 0;
@@ -257,7 +311,7 @@ impl Support {
                 return Err(ContractError::Invalid {
                     key: keys::SUPPORT_CMD_MIN,
                     value: format!("joint {}: min {} max {}", k + 1, s.cmd_min_deg[k], s.cmd_max_deg[k]),
-                    expected: "min ≤ max, steps and gaps ≥ 0",
+                    expected: "min ≤ max, steps and gaps ≥ 0".into(),
                 });
             }
         }
@@ -272,9 +326,9 @@ fn parse_count(key: &'static str, value: &str, min: usize, max: usize) -> Result
             key,
             value: value.to_string(),
             expected: if key == keys::JOINTS {
-                "an integer in 1..=8 (MAX_JOINTS)"
+                format!("an integer in 1..={MAX_JOINTS} (MAX_JOINTS)")
             } else {
-                "a positive integer"
+                "a positive integer".into()
             },
         }),
     }
