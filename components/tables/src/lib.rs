@@ -404,6 +404,10 @@ impl TableWriter {
     }
 
     /// One row of already formatted fields.
+    ///
+    /// # Panics
+    /// When the row has another number of fields than the header: the caller builds both, so
+    /// that is a bug in the caller, never bad input.
     pub fn row<I, S>(&mut self, fields: I)
     where
         I: IntoIterator<Item = S>,
