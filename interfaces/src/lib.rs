@@ -1,7 +1,7 @@
 //! bowden's sample types: the fixed-layout payloads exchanged between processes over
 //! iceoryx2 shared memory, and the names of the services that carry them; and ([`model`]) the
 //! contract of the ONNX model files that tools exchange (what `bowden train` writes and the
-//! compensator loads).
+//! compensator loads); and ([`config`]) the error every configuration loader returns.
 //!
 //! Every type here is `#[repr(C)]` plain data without pointers, so a C, C++ or Python
 //! iceoryx2 client can mirror it byte for byte (see `LAYOUT.md` beside this crate, and
@@ -23,6 +23,7 @@
 
 use iceoryx2::prelude::ZeroCopySend;
 
+pub mod config;
 pub mod model;
 pub mod services;
 

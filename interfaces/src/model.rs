@@ -276,6 +276,13 @@ impl Support {
         if all.iter().all(|k| get(k).is_none()) {
             return Ok(None);
         }
+        if joints > MAX_JOINTS {
+            return Err(ContractError::Invalid {
+                key: keys::SUPPORT_CMD_MIN,
+                value: format!("{joints} joints"),
+                expected: format!("at most {MAX_JOINTS} joints"),
+            });
+        }
         let read = |key: &'static str| -> Result<[f64; MAX_JOINTS], ContractError> {
             let s = get(key).ok_or(ContractError::Missing { key })?;
             let bad = || ContractError::Invalid {

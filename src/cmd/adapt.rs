@@ -7,9 +7,9 @@ use anyhow::{bail, Context, Result};
 use bowden_adapt::{CheckRecord, SwapRecord};
 use bowden_compensator::{Compensator, Loaded, LoaderSettings, ModelLoader, StepOutput};
 use bowden_interfaces::{fnv1a64, ModelUpdate};
+use bowden_latency::{LatencyHistogram, Percentiles};
 use bowden_runtime::alloc;
 use clap::{Args, Subcommand};
-use hdrhistogram::Histogram;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -140,23 +140,15 @@ pub fn run(c: Command) -> Result<()> {
 #[derive(serde::Serialize)]
 struct Row {
     cycles: String,
-    n: u64,
-    p50_us: f64,
-    p99_us: f64,
-    p999_us: f64,
-    max_us: f64,
+    #[serde(flatten)]
+    latency: Percentiles,
     system_allocs: u64,
 }
 
-fn row(name: &str, h: &Histogram<u64>, allocs: u64) -> Row {
-    let us = |q: f64| h.value_at_quantile(q) as f64 / 1000.0;
+fn row(name: &str, h: &LatencyHistogram, allocs: u64) -> Row {
     Row {
         cycles: name.into(),
-        n: h.len(),
-        p50_us: us(0.5),
-        p99_us: us(0.99),
-        p999_us: us(0.999),
-        max_us: h.max() as f64 / 1000.0,
+        latency: h.percentiles(),
         system_allocs: allocs,
     }
 }
@@ -210,7 +202,7 @@ pub fn bench(c: BenchCommand) -> Result<()> {
     }
     let loader = ModelLoader::spawn(LoaderSettings::for_compensator(&comp, &cfg, "bench swap", false))?;
     let targets = bowden_compensator::bench::random_trajectory(&robot, a.cycles as usize + 1, a.fine_deg_per_step, 7);
-    let new_h = || Histogram::<u64>::new_with_bounds(1, 10_000_000_000, 3).expect("valid bounds");
+    let new_h = LatencyHistogram::new;
     let (mut normal, mut advance, mut swap) = (new_h(), new_h(), new_h());
     let (mut normal_allocs, mut swap_allocs) = (0u64, 0u64);
     let mut out = StepOutput::default();
@@ -234,14 +226,14 @@ pub fn bench(c: BenchCommand) -> Result<()> {
         // The first 200 cycles warm caches and the allocator; not measured.
         if k >= 200 {
             if did_swap {
-                swap.record(ns.max(1))?;
+                swap.record(ns);
                 swap_allocs += d;
                 swapped += 1;
             } else {
                 if out.history_appended > 0 {
-                    advance.record(ns.max(1))?;
+                    advance.record(ns);
                 }
-                normal.record(ns.max(1))?;
+                normal.record(ns);
                 normal_allocs += d;
             }
         }
@@ -260,7 +252,7 @@ pub fn bench(c: BenchCommand) -> Result<()> {
         row("… of which a history step", &advance, 0),
         row("swap", &swap, swap_allocs),
     ];
-    let ratio = rows[2].p999_us / rows[0].p999_us;
+    let ratio = rows[2].latency.p999_ns as f64 / rows[0].latency.p999_ns.max(1) as f64;
     if a.json {
         let v = serde_json::json!({
             "mode": comp.mode().to_string(), "period_us": a.period_us, "requested": requested, "swapped": swapped,
@@ -281,7 +273,13 @@ pub fn bench(c: BenchCommand) -> Result<()> {
     for r in &rows {
         println!(
             "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {} |",
-            r.cycles, r.n, r.p50_us, r.p99_us, r.p999_us, r.max_us, r.system_allocs
+            r.cycles,
+            r.latency.count,
+            Percentiles::us(r.latency.p50_ns),
+            Percentiles::us(r.latency.p99_ns),
+            Percentiles::us(r.latency.p999_ns),
+            Percentiles::us(r.latency.max_ns),
+            r.system_allocs
         );
     }
     println!("\nswap-cycle p99.9 / normal-cycle p99.9 = {ratio:.2}");

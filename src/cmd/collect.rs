@@ -11,6 +11,7 @@ use bowden_learning::dataset::{fnv1a64_hex, Dataset};
 use bowden_runtime::config::{Mode, Overrides, PipelineConfig};
 use bowden_runtime::launch::LaunchOptions;
 use bowden_runtime::session::{LockstepSession, SessionOptions, Taps};
+use bowden_trajectory::ExcitationKind;
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
@@ -47,8 +48,8 @@ pub struct CollectArgs {
     /// `mixed` (default): eq. (16) with per-segment step multipliers 1–4 and dither up to ±20°,
     /// so the models also learn the jumps a compensator commands on reversals. `paper`: eq. (16)
     /// exactly. How models trained on each track: docs/results/data-study/.
-    #[arg(long, default_value = "mixed", value_parser = super::choice(&["paper", "mixed"]), ignore_case = true)]
-    pub excitation: String,
+    #[arg(long, default_value = "mixed", value_parser = super::typed::<ExcitationKind>(), ignore_case = true)]
+    pub excitation: ExcitationKind,
     /// Collect under the compensator: the excitation's commands become *targets*, compensated
     /// by this controller (its models, mode and safety), and `q_cmd` records the command it
     /// sent. A model pair trained on a first dataset thus records what a compensator commands
@@ -111,10 +112,7 @@ fn collect(mut a: CollectArgs) -> Result<()> {
         None => None,
     };
     let robot = Robot::load(&a.robot)?;
-    let excitation = match a.excitation.as_str() {
-        "mixed" => bowden_trajectory::Excitation::mixed(),
-        _ => bowden_trajectory::Excitation::paper(),
-    };
+    let excitation = a.excitation.excitation();
     let commands = bowden_trajectory::excitation_commands(&robot, a.samples, a.seed, &excitation)
         .map_err(|e| anyhow::anyhow!("--excitation {}: {e}", a.excitation))?;
     let work = a.out.join("pipeline");
@@ -280,7 +278,7 @@ fn collect(mut a: CollectArgs) -> Result<()> {
         "tick_ns": cfg.period_ns(),
         "step_deg": bowden_trajectory::DATASET_STEP_DEG,
         "excitation": {
-            "name": a.excitation,
+            "name": a.excitation.as_str(),
             "step_multipliers": excitation.step_multipliers,
             "dither_deg": excitation.dither_deg,
         },

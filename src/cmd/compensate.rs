@@ -60,8 +60,8 @@ pub struct CompensateArgs {
     #[arg(long)]
     cols: Option<String>,
     /// Controller mode (default: the config's mode).
-    #[arg(long, value_parser = super::choice(&["uncalibrated", "paper", "newton"]), ignore_case = true)]
-    mode: Option<String>,
+    #[arg(long, value_parser = super::typed::<Mode>(), ignore_case = true)]
+    mode: Option<Mode>,
     /// Output CSV (default: standard output); the columns are listed above.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -97,8 +97,8 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 300)]
     naive_steps: usize,
     /// dataset-step (a history change every step: the worst case), fine (1 kHz-like), both.
-    #[arg(long, default_value = "both", value_parser = super::choice(&["dataset-step", "fine", "both"]), ignore_case = true)]
-    scenario: String,
+    #[arg(long, value_enum, default_value_t = ScenarioChoice::Both, ignore_case = true)]
+    scenario: ScenarioChoice,
     /// Joint-space distance per step of the `fine` scenario, deg (0.06 = 60 deg/s at 1 kHz).
     #[arg(long, default_value_t = 0.06)]
     fine_deg_per_step: f64,
@@ -163,8 +163,12 @@ pub fn load_setup(m: &ModelArgs) -> anyhow::Result<(ControllerConfig, Robot)> {
     Ok((cfg, robot))
 }
 
-fn parse_mode(s: &str) -> anyhow::Result<Mode> {
-    Mode::parse(s).with_context(|| format!("--mode {s:?}: expected uncalibrated, paper or newton"))
+/// `bench compensate --scenario`: one of the compensator bench's scenarios, or both.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ScenarioChoice {
+    DatasetStep,
+    Fine,
+    Both,
 }
 
 fn progress_bar(n: u64, what: &str) -> indicatif::ProgressBar {
@@ -184,8 +188,8 @@ pub fn run(c: Command) -> anyhow::Result<()> {
 
 fn compensate(a: CompensateArgs) -> anyhow::Result<()> {
     let (mut cfg, robot) = load_setup(&a.models)?;
-    if let Some(m) = &a.mode {
-        cfg.mode = parse_mode(m)?;
+    if let Some(m) = a.mode {
+        cfg.mode = m;
     }
     cfg.budget.budget_ns = a.budget_ns;
     // Waypoints unless a period is given: the rate limit is a speed, meaningless without time.
@@ -302,11 +306,10 @@ pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
     if a.steps == 0 {
         bail!("--steps must be > 0");
     }
-    let scenarios = match a.scenario.as_str() {
-        "dataset-step" => vec![Scenario::DatasetStep],
-        "fine" => vec![Scenario::Fine],
-        "both" => vec![Scenario::DatasetStep, Scenario::Fine],
-        other => bail!("--scenario {other:?}: expected dataset-step, fine or both"),
+    let scenarios = match a.scenario {
+        ScenarioChoice::DatasetStep => vec![Scenario::DatasetStep],
+        ScenarioChoice::Fine => vec![Scenario::Fine],
+        ScenarioChoice::Both => vec![Scenario::DatasetStep, Scenario::Fine],
     };
     if !(a.fine_deg_per_step.is_finite() && a.fine_deg_per_step > 0.0) {
         bail!("--fine-deg-per-step {}: must be a positive number", a.fine_deg_per_step);

@@ -234,7 +234,7 @@ fn eval(
         hint_offset_deg,
     };
     let bar = progress(frames as u64, "frames");
-    let report = run_eval(&mut est, &mut source, &opts, |_| bar.inc(1)).map_err(anyhow::Error::msg)?;
+    let report = run_eval(&mut est, &mut source, &opts, |_| bar.inc(1))?;
     bar.finish_and_clear();
     if json {
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -252,10 +252,7 @@ fn eval(
         let m = dir.join("eval.md");
         std::fs::write(&m, report.to_markdown()).with_context(|| format!("writing {}", m.display()))?;
         let svg = dir.join("eval.svg");
-        report
-            .write_svg(&svg)
-            .map_err(anyhow::Error::msg)
-            .with_context(|| format!("writing {}", svg.display()))?;
+        report.write_svg(&svg)?;
         eprintln!("wrote {}, {}, {}", j.display(), m.display(), svg.display());
     }
     if check {

@@ -13,10 +13,6 @@ use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 
 // The spellings are the model contract's (bowden_interfaces::model), listed from the enums.
-const ARCHS: &[&str] = <Architecture as strum::VariantNames>::VARIANTS;
-const DIRECTIONS: &[&str] = <Direction as strum::VariantNames>::VARIANTS;
-const TCN_BLOCKS: &[&str] = <TcnBlock as strum::VariantNames>::VARIANTS;
-const BACKENDS: &[&str] = &["fused", "candle"];
 
 #[derive(Subcommand)]
 pub enum Command {
@@ -56,13 +52,13 @@ pub struct SplitArgs {
     #[arg(long, default_value_t = 1)]
     val_blocks: usize,
     /// Physical angles from the vision estimate (as the paper) or the simulator's truth.
-    #[arg(long, default_value = "vision", value_parser = super::choice(&["vision", "truth"]), ignore_case = true)]
-    phy_source: String,
+    #[arg(long, default_value = "vision", value_parser = super::typed::<PhySource>(), ignore_case = true)]
+    phy_source: PhySource,
 }
 
 impl SplitArgs {
     fn parse(&self) -> Result<(SplitConfig, PhySource)> {
-        let phy: PhySource = self.phy_source.parse().map_err(anyhow::Error::msg)?;
+        let phy = self.phy_source;
         Ok((
             SplitConfig {
                 val_fraction: self.val_fraction,
@@ -76,11 +72,11 @@ impl SplitArgs {
 #[derive(Args, Debug)]
 pub struct TrainArgs {
     /// Architecture.
-    #[arg(long, value_parser = super::choice(ARCHS), ignore_case = true)]
-    arch: String,
+    #[arg(long, value_parser = super::typed::<Architecture>(), ignore_case = true)]
+    arch: Architecture,
     /// forward (q_cmd history → q_phy) or inverse (q_phy history → q_cmd).
-    #[arg(long, value_parser = super::choice(DIRECTIONS), ignore_case = true)]
-    direction: String,
+    #[arg(long, value_parser = super::typed::<Direction>(), ignore_case = true)]
+    direction: Direction,
     /// Input sequence length L.
     #[arg(long, default_value_t = 80)]
     seq_len: usize,
@@ -101,8 +97,8 @@ pub struct TrainArgs {
     #[arg(long)]
     force: bool,
     /// relu-linear (ReLU between the convs only; default) or relu-relu (the paper literally).
-    #[arg(long, default_value = "relu-linear", value_parser = super::choice(TCN_BLOCKS), ignore_case = true)]
-    tcn_block: String,
+    #[arg(long, default_value = "relu-linear", value_parser = super::typed::<TcnBlock>(), ignore_case = true)]
+    tcn_block: TcnBlock,
     /// Stop after N epochs without a better validation RMSE.
     #[arg(long)]
     early_stop: Option<usize>,
@@ -113,15 +109,15 @@ pub struct TrainArgs {
     #[arg(long, default_value_t = 1e-3)]
     lr: f64,
     /// fused (hand-written kernels) or candle (autograd reference, slow).
-    #[arg(long, default_value = "fused", value_parser = super::choice(BACKENDS), ignore_case = true)]
-    backend: String,
+    #[arg(long, default_value = "fused", value_parser = super::typed::<Backend>(), ignore_case = true)]
+    backend: Backend,
     /// Worker threads (results do not depend on it).
     #[arg(long, default_value_t = 2)]
     threads: usize,
     /// f32, or bf16: the LSTM's recurrent products with bf16 operands and f32 sums (about
     /// twice as fast on CPUs with AVX-512 BF16; weights, validation and export stay f32).
-    #[arg(long, default_value = "f32", value_parser = super::choice(PRECISIONS), ignore_case = true)]
-    precision: String,
+    #[arg(long, default_value = "f32", value_parser = super::typed::<Precision>(), ignore_case = true)]
+    precision: Precision,
     /// Train on histories decimated by up to N samples per model step as well (each window's
     /// decimation drawn from 1..=N every epoch; a decimated step never skips a reversal of the
     /// commands): the model learns the larger steps a compensator sends, which eq. (16) data
@@ -133,14 +129,12 @@ pub struct TrainArgs {
     split: SplitArgs,
 }
 
-const PRECISIONS: &[&str] = &["f32", "bf16"];
-
 #[derive(Args, Debug)]
 pub struct SweepArgs {
     /// Architectures (comma-separated).
     #[arg(long, default_value = "fnn,lstm,tcn,tcn-lstm", value_delimiter = ',',
-          value_parser = super::choice(ARCHS), ignore_case = true)]
-    archs: Vec<String>,
+          value_parser = super::typed::<Architecture>(), ignore_case = true)]
+    archs: Vec<Architecture>,
     /// Comma-separated sequence lengths.
     #[arg(long, default_value = "10,50,65,80,100,120")]
     seq_lens: String,
@@ -149,12 +143,12 @@ pub struct SweepArgs {
     seeds: u64,
     /// Directions (comma-separated).
     #[arg(long, default_value = "forward,inverse", value_delimiter = ',',
-          value_parser = super::choice(DIRECTIONS), ignore_case = true)]
-    directions: Vec<String>,
+          value_parser = super::typed::<Direction>(), ignore_case = true)]
+    directions: Vec<Direction>,
     /// TCN block variants for tcn and tcn-lstm (comma-separated).
     #[arg(long, default_value = "relu-linear,relu-relu", value_delimiter = ',',
-          value_parser = super::choice(TCN_BLOCKS), ignore_case = true)]
-    tcn_blocks: Vec<String>,
+          value_parser = super::typed::<TcnBlock>(), ignore_case = true)]
+    tcn_blocks: Vec<TcnBlock>,
     /// Training epochs of every run.
     #[arg(long, default_value_t = 30)]
     epochs: usize,
@@ -221,8 +215,8 @@ pub struct ImportArgs {
     #[arg(long)]
     force: bool,
     /// Angle unit of the data: deg, or rad (converted to degrees).
-    #[arg(long, default_value = "deg", value_parser = super::choice(&["deg", "rad"]), ignore_case = true)]
-    unit: String,
+    #[arg(long, default_value = "deg", value_parser = super::typed::<AngleUnit>(), ignore_case = true)]
+    unit: AngleUnit,
     /// 1-based joints to keep, e.g. 1,2,3.
     #[arg(long)]
     joints: Option<String>,
@@ -254,8 +248,8 @@ pub enum BenchCommand {
 #[derive(Args, Debug)]
 pub struct BenchTrainArgs {
     /// Architectures (comma-separated); default: tcn and lstm.
-    #[arg(long, value_delimiter = ',', value_parser = super::choice(ARCHS), ignore_case = true)]
-    arch: Vec<String>,
+    #[arg(long, value_delimiter = ',', value_parser = super::typed::<Architecture>(), ignore_case = true)]
+    arch: Vec<Architecture>,
     /// Epochs timed (the median is reported).
     #[arg(long, default_value_t = 3)]
     epochs: usize,
@@ -263,8 +257,8 @@ pub struct BenchTrainArgs {
     #[arg(long, default_value_t = 2)]
     threads: usize,
     /// fused (hand-written kernels) or candle (autograd reference).
-    #[arg(long, default_value = "fused", value_parser = super::choice(BACKENDS), ignore_case = true)]
-    backend: String,
+    #[arg(long, default_value = "fused", value_parser = super::typed::<Backend>(), ignore_case = true)]
+    backend: Backend,
     /// Windows per epoch (default: the paper's 24,565).
     #[arg(long, default_value_t = bowden_learning::bench::PAPER_TRAIN_WINDOWS)]
     windows: usize,
@@ -272,8 +266,8 @@ pub struct BenchTrainArgs {
     #[arg(long, default_value_t = 80)]
     seq_len: usize,
     /// f32, or bf16 (mixed precision for the LSTM's recurrent products).
-    #[arg(long, default_value = "f32", value_parser = super::choice(PRECISIONS), ignore_case = true)]
-    precision: String,
+    #[arg(long, default_value = "f32", value_parser = super::typed::<Precision>(), ignore_case = true)]
+    precision: Precision,
     /// A Python interpreter with torch: times PyTorch's epoch of the same networks and
     /// shapes in this run, just before bowden's (with bf16 also under autocast(bfloat16)).
     #[arg(long)]
@@ -281,19 +275,6 @@ pub struct BenchTrainArgs {
     /// Print JSON instead of a table.
     #[arg(long)]
     json: bool,
-}
-
-/// Values clap has checked against their list (lower-case), parsed.
-fn parse_list<T>(values: &[String], what: &str) -> Result<Vec<T>>
-where
-    T: std::str::FromStr,
-    T::Err: std::fmt::Display,
-{
-    values
-        .iter()
-        .map(|p| p.parse::<T>().map_err(|e| anyhow::anyhow!("{p:?}: {e}")))
-        .collect::<Result<Vec<T>>>()
-        .with_context(|| format!("--{what} {}", values.join(",")))
 }
 
 fn parse_usizes(s: &str, what: &str) -> Result<Vec<usize>> {
@@ -320,28 +301,15 @@ fn epoch_bar() -> ProgressBar {
 pub fn run(c: Command) -> Result<()> {
     match c {
         Command::Train(a) => {
-            let arch: Architecture = a.arch.parse().map_err(anyhow::Error::msg).context("--arch")?;
-            let direction: Direction = a.direction.parse().map_err(anyhow::Error::msg).context("--direction")?;
+            let (arch, direction) = (a.arch, a.direction);
             let mut cfg = TrainConfig::paper(arch, direction, a.seq_len, a.epochs, a.seed);
-            cfg.tcn_block = a
-                .tcn_block
-                .parse::<TcnBlock>()
-                .map_err(anyhow::Error::msg)
-                .context("--tcn-block")?;
+            cfg.tcn_block = a.tcn_block;
             cfg.early_stop = a.early_stop;
             cfg.batch_size = a.batch_size;
             cfg.lr = a.lr;
-            cfg.backend = a
-                .backend
-                .parse::<Backend>()
-                .map_err(anyhow::Error::msg)
-                .context("--backend")?;
+            cfg.backend = a.backend;
             cfg.threads = a.threads;
-            cfg.precision = a
-                .precision
-                .parse::<Precision>()
-                .map_err(anyhow::Error::msg)
-                .context("--precision")?;
+            cfg.precision = a.precision;
             let (split, phy) = a.split.parse()?;
             let data = super::dataset_dir("--data", &a.data)?;
             let (json, svg) = bowden_learning::report::sidecar_paths(&a.out);
@@ -413,7 +381,7 @@ pub fn run(c: Command) -> Result<()> {
             Ok(())
         }
         Command::Import(a) => {
-            let unit: AngleUnit = a.unit.parse().map_err(anyhow::Error::msg).context("--unit")?;
+            let unit = a.unit;
             super::dataset_out(&a.out, a.force)?;
             let opts = ImportOptions {
                 unit,
@@ -456,11 +424,11 @@ fn sweep(a: SweepArgs) -> Result<()> {
         bowden_learning::kernels::simd::force_portable(true);
     }
     let cfg = SweepConfig {
-        archs: parse_list(&a.archs, "archs")?,
+        archs: a.archs.clone(),
         seq_lens: parse_usizes(&a.seq_lens, "seq-lens")?,
         seeds: a.seeds,
-        directions: parse_list(&a.directions, "directions")?,
-        tcn_blocks: parse_list(&a.tcn_blocks, "tcn-blocks")?,
+        directions: a.directions.clone(),
+        tcn_blocks: a.tcn_blocks.clone(),
         epochs: a.epochs,
         early_stop: a.early_stop,
         split,
@@ -590,10 +558,9 @@ pub fn bench(c: BenchCommand) -> Result<()> {
         BenchCommand::Train(a) => {
             let archs: Vec<Architecture> = match a.arch.as_slice() {
                 [] => vec![Architecture::Tcn, Architecture::Lstm],
-                some => parse_list(some, "arch")?,
+                some => some.to_vec(),
             };
-            let backend: Backend = a.backend.parse().map_err(anyhow::Error::msg).context("--backend")?;
-            let precision: Precision = a.precision.parse().map_err(anyhow::Error::msg).context("--precision")?;
+            let (backend, precision) = (a.backend, a.precision);
             let mut results = Vec::new();
             for arch in archs {
                 let mut o = BenchOptions::paper(arch);

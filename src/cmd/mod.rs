@@ -39,6 +39,30 @@ pub fn choice(values: &'static [&'static str]) -> impl clap::builder::TypedValue
     })
 }
 
+/// An option taking one of the names of the enumeration `E` (strum's spellings), matched
+/// case-insensitively (with `ignore_case = true` on the argument); `--help` lists them and the
+/// command receives the typed value.
+pub fn typed<E>() -> impl clap::builder::TypedValueParser<Value = E>
+where
+    E: std::str::FromStr + strum::VariantNames + Clone + Send + Sync + 'static,
+{
+    typed_of::<E>(E::VARIANTS)
+}
+
+/// [`typed`] restricted to the variants spelled in `names` (e.g. the refinement modes of
+/// `Mode`, without `uncalibrated`).
+pub fn typed_of<E>(names: &'static [&'static str]) -> impl clap::builder::TypedValueParser<Value = E>
+where
+    E: std::str::FromStr + Clone + Send + Sync + 'static,
+{
+    clap::builder::TypedValueParser::try_map(clap::builder::PossibleValuesParser::new(names), |s: String| {
+        // PossibleValuesParser matched one of `names`, all lower-case spellings of E.
+        s.to_ascii_lowercase()
+            .parse::<E>()
+            .map_err(|_| format!("`{s}` is not one of: {}", names.join(", ")))
+    })
+}
+
 /// Refuses to overwrite an earlier result: an error naming the first of `files` that exists,
 /// the flag that allows it and the option that chooses another place (`flag`, e.g. `--out`).
 pub fn refuse_overwrite(files: &[PathBuf], force: bool, flag: &str) -> Result<()> {

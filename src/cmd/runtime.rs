@@ -19,8 +19,8 @@ use std::time::Duration;
 #[derive(Args, Debug, Clone, Default)]
 pub struct OverrideArgs {
     /// Scheduling mode: lockstep (simulated clock, reproducible) or realtime.
-    #[arg(long, value_parser = super::choice(&["lockstep", "realtime"]), ignore_case = true)]
-    mode: Option<String>,
+    #[arg(long, value_parser = super::typed::<Mode>(), ignore_case = true)]
+    mode: Option<Mode>,
     /// iceoryx2 shared-memory prefix (isolates runs on one machine).
     #[arg(long)]
     prefix: Option<String>,
@@ -37,12 +37,8 @@ pub struct OverrideArgs {
 
 impl OverrideArgs {
     fn overrides(&self) -> anyhow::Result<Overrides> {
-        let mode = match &self.mode {
-            Some(m) => Some(Mode::parse(m).with_context(|| format!("--mode `{m}`: expected lockstep or realtime"))?),
-            None => None,
-        };
         Ok(Overrides {
-            mode,
+            mode: self.mode,
             prefix: self.prefix.clone(),
             namespace: self.namespace.clone(),
             record_path: self.record.clone(),
@@ -162,6 +158,30 @@ pub enum Command {
 
 /// Loads a pipeline: `@sim` (the embedded default), or a file found by `crate::home`'s order.
 /// Children get the path found, so every process reads the same file.
+/// `bench cycle --load`: CPU load during the measurement.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LoadChoice {
+    /// No load.
+    None,
+    /// Load on the CPUs the pipeline is not pinned to.
+    Other,
+    /// Load on every CPU.
+    All,
+    /// `none`, then `other`.
+    Both,
+}
+
+/// `bench cycle --sched`: the scheduling policy of the pipeline's processes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum SchedChoice {
+    /// SCHED_FIFO as configured.
+    Fifo,
+    /// SCHED_FIFO off in every process.
+    Other,
+    /// `fifo`, then `other`.
+    Both,
+}
+
 fn load(arg: &str, ov: &Overrides) -> anyhow::Result<PipelineConfig> {
     let arg = if arg == SIM_DEFAULT_NAME {
         arg.to_string()
@@ -494,11 +514,11 @@ pub enum BenchCommand {
         config: Option<Vec<String>>,
         /// none, other (load on the CPUs the pipeline is not pinned to), all (every CPU), or
         /// both (= none then other).
-        #[arg(long, default_value = "both", value_parser = super::choice(&["none", "other", "all", "both"]), ignore_case = true)]
-        load: String,
+        #[arg(long, value_enum, default_value_t = LoadChoice::Both, ignore_case = true)]
+        load: LoadChoice,
         /// fifo (as configured), other (SCHED_FIFO off in every process), or both.
-        #[arg(long, default_value = "fifo", value_parser = super::choice(&["fifo", "other", "both"]), ignore_case = true)]
-        sched: String,
+        #[arg(long, value_enum, default_value_t = SchedChoice::Fifo, ignore_case = true)]
+        sched: SchedChoice,
         /// Print the results as JSON on stdout instead of the table.
         #[arg(long)]
         json: bool,
@@ -661,11 +681,10 @@ pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
                 Some(c) => c,
                 None => vec!["configs/cycle.toml".into(), "configs/cycle-grouped.toml".into()],
             };
-            let scheds: &[bool] = match sched.as_str() {
-                "fifo" => &[true],
-                "other" => &[false],
-                "both" => &[true, false],
-                other => bail!("--sched `{other}`: expected fifo, other or both"),
+            let scheds: &[bool] = match sched {
+                SchedChoice::Fifo => &[true],
+                SchedChoice::Other => &[false],
+                SchedChoice::Both => &[true, false],
             };
             let mut cfgs: Vec<(String, PipelineConfig)> = Vec::new();
             for c in &configs {
@@ -698,12 +717,11 @@ pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
             let n_cpus = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
             let others: Vec<usize> = (0..n_cpus).filter(|c| !pinned.contains(c)).collect();
             let all: Vec<usize> = (0..n_cpus).collect();
-            let loads: Vec<(&str, Load)> = match load.as_str() {
-                "none" => vec![("no load", Load::None)],
-                "other" => vec![("load other CPU", Load::Cpus(others.clone()))],
-                "all" => vec![("load every CPU", Load::Cpus(all))],
-                "both" => vec![("no load", Load::None), ("load other CPU", Load::Cpus(others.clone()))],
-                other => bail!("--load `{other}`: expected none, other, all or both"),
+            let loads: Vec<(&str, Load)> = match load {
+                LoadChoice::None => vec![("no load", Load::None)],
+                LoadChoice::Other => vec![("load other CPU", Load::Cpus(others.clone()))],
+                LoadChoice::All => vec![("load every CPU", Load::Cpus(all))],
+                LoadChoice::Both => vec![("no load", Load::None), ("load other CPU", Load::Cpus(others.clone()))],
             };
             let fifo = bench::probe_fifo(80);
             let setup = format!(

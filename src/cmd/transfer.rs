@@ -29,6 +29,7 @@ use bowden_learning::dataset::fnv1a64_hex;
 use bowden_learning::spacing::DecimationRule;
 use bowden_learning::sweep::{Selection, SHARDING};
 use bowden_learning::{Architecture, Precision};
+use bowden_trajectory::ExcitationKind;
 use clap::{Args, Subcommand};
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
@@ -135,7 +136,7 @@ pub struct Recipe {
     /// `collect --samples`: random configurations of eq. (16).
     pub samples: usize,
     /// `collect --excitation`: paper | mixed.
-    pub excitation: String,
+    pub excitation: ExcitationKind,
     /// `train --arch` for each (both directions each).
     pub archs: Vec<String>,
     /// Forward models trained only to judge `tune`'s candidates (`tune --judge`), never sent
@@ -244,7 +245,7 @@ pub struct ClosedLoopRecipe {
     /// `collect --samples`: random configurations, now targets of the compensator.
     pub samples: usize,
     /// `collect --excitation` of the targets: paper | mixed.
-    pub excitation: String,
+    pub excitation: ExcitationKind,
 }
 
 /// `[recipe.feedback]`: the same `[feedback]` settings for every unit, added to the controller
@@ -312,20 +313,11 @@ impl TransferConfig {
                 r.samples
             ));
         }
-        if !["paper", "mixed"].contains(&r.excitation.as_str()) {
-            return Err(format!("recipe.excitation: `{}` is not paper or mixed", r.excitation));
-        }
         if let Some(cl) = &r.closed_loop {
             if cl.samples < 2 {
                 return Err(format!(
                     "recipe.closed_loop.samples: need at least 2 random configurations, got {}",
                     cl.samples
-                ));
-            }
-            if !["paper", "mixed"].contains(&cl.excitation.as_str()) {
-                return Err(format!(
-                    "recipe.closed_loop.excitation: `{}` is not paper or mixed",
-                    cl.excitation
                 ));
             }
         }
@@ -1221,7 +1213,7 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
             "--seed".into(),
             ctx.seed.to_string(),
             "--excitation".into(),
-            r.excitation.clone(),
+            r.excitation.as_str().into(),
             "--out".into(),
             s(&data),
         ];
@@ -1253,7 +1245,7 @@ fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) 
                 "--seed".into(),
                 (ctx.seed + 1).to_string(),
                 "--excitation".into(),
-                cl.excitation.clone(),
+                cl.excitation.as_str().into(),
                 "--controller-config".into(),
                 s(&controller),
                 "--extend".into(),
@@ -3491,7 +3483,7 @@ heldout_units = [1, 2]
             (c.recipe.decimation, c.recipe.samples, c.recipe.epochs),
             (DecimationRule::Auto, 1802, 30)
         );
-        assert_eq!(c.recipe.excitation, "paper");
+        assert_eq!(c.recipe.excitation, ExcitationKind::Paper);
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! `bowden tune`: the controller config for a new robot, chosen from its validation data
 //! (bowden-tuning). A thin wrapper: parse, load, call, write.
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use bowden_compensator::{ControllerConfig, Mode};
 use bowden_kinematics::Robot;
 use bowden_learning::dataset::Dataset;
@@ -44,8 +44,8 @@ pub struct TuneArgs {
     pub max_steps: usize,
     /// Modes to consider (comma-separated).
     #[arg(long, value_delimiter = ',', default_value = "paper,newton",
-          value_parser = super::choice(&["paper", "newton"]), ignore_case = true)]
-    pub modes: Vec<String>,
+          value_parser = super::typed_of::<Mode>(&["paper", "newton"]), ignore_case = true)]
+    pub modes: Vec<Mode>,
     /// Newton prior weights μ to try (σ_f/σ_i of each pair is always added).
     #[arg(long, value_delimiter = ',', default_value = "0,0.5,1,2")]
     pub prior_weights: Vec<f64>,
@@ -101,15 +101,7 @@ fn run_tune(mut a: TuneArgs) -> Result<()> {
             *m = home(m, flag)?;
         }
     }
-    let mut modes = Vec::new();
-    for m in &a.modes {
-        match Mode::parse(&m.to_ascii_lowercase()) {
-            Some(Mode::Uncalibrated) | None => {
-                bail!("--modes: `{m}` is not a refinement mode (expected paper, newton)")
-            }
-            Some(mode) => modes.push(mode),
-        }
-    }
+    let modes = a.modes.clone();
     let robot = Robot::load(&a.robot)?;
     let base_text = std::fs::read_to_string(&a.base).with_context(|| format!("--base {}", a.base.display()))?;
     let base = ControllerConfig::parse(&base_text, &a.base)?;

@@ -4,7 +4,7 @@
 use bowden_interfaces::{services, JointTarget};
 use bowden_runtime::ports::Output;
 use bowden_runtime::stage::{Stage, StageBuildError, StageEnv, StageError, StepCx, StepReport};
-use bowden_tables::{ReadOptions, Table};
+use bowden_tables::{Location, ReadOptions, Table, TableError};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
@@ -39,13 +39,13 @@ fn yes() -> bool {
 
 /// Reads a CSV of joint commands, five values a row (q1..q5, degrees), with an optional header
 /// line before the first; errors name the file, line and column.
-pub fn read_csv(path: &Path) -> Result<Vec<[f64; 5]>, String> {
+pub fn read_csv(path: &Path) -> Result<Vec<[f64; 5]>, TableError> {
     let opts = ReadOptions {
         header: false,
         comments: true,
         ignore_case: false,
     };
-    let table = Table::read(path, opts).map_err(|e| e.to_string())?;
+    let table = Table::read(path, opts)?;
     // A header line (q1,q2,...) is allowed before the first command: a first row without a
     // single number in it.
     let first_is_header = table
@@ -57,21 +57,26 @@ pub fn read_csv(path: &Path) -> Result<Vec<[f64; 5]>, String> {
     for r in skip..table.rows.len() {
         let fields = &table.rows[r].fields;
         if fields.len() != 5 {
-            return Err(format!(
-                "{}:{}: {} values, expected 5 (q1..q5)",
-                path.display(),
-                table.rows[r].line,
-                fields.len()
-            ));
+            return Err(TableError::Malformed {
+                at: Location {
+                    path: path.to_path_buf(),
+                    line: table.rows[r].line,
+                    column: None,
+                },
+                what: format!("{} values, expected 5 (q1..q5)", fields.len()),
+            });
         }
         let mut q = [0.0; 5];
         for (j, v) in q.iter_mut().enumerate() {
-            *v = table.finite(r, j).map_err(|e| e.to_string())?;
+            *v = table.finite(r, j)?;
         }
         out.push(q);
     }
     if out.is_empty() {
-        return Err(format!("{}: no commands", path.display()));
+        return Err(TableError::Empty {
+            path: path.to_path_buf(),
+            what: "no commands".into(),
+        });
     }
     Ok(out)
 }
@@ -99,7 +104,7 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
             (c, pause_s, repeat)
         }
         Params::Csv { file, pause_s, repeat } => {
-            let c = read_csv(&super::resolve(env, &file)).map_err(|e| env.error(e))?;
+            let c = read_csv(&super::resolve(env, &file)).map_err(|e| env.error(e.to_string()))?;
             for (i, q) in c.iter().enumerate() {
                 robot
                     .check_limits(q)

@@ -2,6 +2,7 @@
 //! write generations, keep state. The `adapt` node (src/nodes/adapt.rs) drives it.
 
 use crate::config::AdaptConfig;
+use bowden_interfaces::config::ConfigError;
 use bowden_interfaces::fnv1a64;
 use bowden_learning::{
     fine_tune, mean_residual_deg, rmse_deg, Dataset, Direction, ModelFile, PhySource, TrainConfig, WindowSet,
@@ -15,12 +16,15 @@ use std::path::{Path, PathBuf};
 pub enum AdaptError {
     #[error("{path}: {message}")]
     File { path: PathBuf, message: String },
-    #[error("{0}")]
-    Config(String),
+    #[error(transparent)]
+    Config(#[from] ConfigError),
     /// The saved rows: unreadable, malformed or not numbers (file:line:column).
     #[error(transparent)]
     Table(#[from] TableError),
 }
+
+/// How errors name the settings an adapter was opened with (they may not come from a file).
+const SETTINGS: &str = "the [adapt] settings";
 
 fn file_err(path: &Path, e: impl std::fmt::Display) -> AdaptError {
     AdaptError::File {
@@ -174,7 +178,7 @@ impl Adapter {
         inv_file: &Path,
         resume: bool,
     ) -> Result<Self, AdaptError> {
-        cfg.validate().map_err(AdaptError::Config)?;
+        cfg.validate(SETTINGS)?;
         let state_path = state_dir.join("state.json");
         if !resume && state_dir.exists() {
             std::fs::remove_dir_all(state_dir).map_err(|e| file_err(state_dir, e))?;
@@ -209,17 +213,28 @@ impl Adapter {
         let fwd = load(&state.fwd_file, Direction::Forward)?;
         let inv = load(&state.inv_file, Direction::Inverse)?;
         if fwd.spec.joints != inv.spec.joints {
-            return Err(AdaptError::Config(
-                "the forward and inverse models have different joints".into(),
-            ));
+            return Err(ConfigError::invalid(
+                SETTINGS,
+                "models",
+                format!(
+                    "the forward model has {} joints, the inverse {}",
+                    fwd.spec.joints, inv.spec.joints
+                ),
+            )
+            .into());
         }
         let l = fwd.spec.seq_len.max(inv.spec.seq_len);
         let min_rows = (l - 1) + holdout_rows(&cfg) + 20;
         if cfg.window_rows < min_rows {
-            return Err(AdaptError::Config(format!(
-                "[adapt] window_rows = {} is too small for L = {l}: at least {min_rows} (L − 1 of history, the hold-out and 20 training windows)",
-                cfg.window_rows
-            )));
+            return Err(ConfigError::invalid(
+                SETTINGS,
+                "adapt.window_rows",
+                format!(
+                    "{} is too small for L = {l}: at least {min_rows} (L − 1 of history, the hold-out and 20 training windows)",
+                    cfg.window_rows
+                ),
+            )
+            .into());
         }
         let mut a = Self {
             cfg,

@@ -1,5 +1,6 @@
 //! `[adapt]`: the settings of online adaptation (configs/adapt.toml), validated on load.
 
+use bowden_interfaces::config::ConfigError;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -69,71 +70,80 @@ impl Default for AdaptConfig {
 
 impl AdaptConfig {
     /// Reads and validates a TOML file whose `[adapt]` table (or whole body) holds the settings.
-    pub fn load(path: &Path) -> Result<Self, String> {
-        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-        Self::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()))
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::io(path.display(), e))?;
+        Self::from_toml(&text, path.display())
     }
 
-    pub fn from_toml(text: &str) -> Result<Self, String> {
-        let v: toml::Table = toml::from_str(text).map_err(|e| e.to_string().replace('\n', " "))?;
+    /// Parses and validates TOML text; `origin` only names the source in errors.
+    pub fn from_toml(text: &str, origin: impl std::fmt::Display) -> Result<Self, ConfigError> {
+        let origin = origin.to_string();
+        let v: toml::Table = toml::from_str(text).map_err(|e| ConfigError::parse(&origin, e))?;
         let table = match v.get("adapt") {
             Some(toml::Value::Table(t)) => t.clone(),
-            Some(_) => return Err("`adapt` must be a table".into()),
+            Some(_) => return Err(ConfigError::invalid(&origin, "adapt", "must be a table")),
             None => v,
         };
         let c: AdaptConfig = table
             .try_into()
-            .map_err(|e: toml::de::Error| e.to_string().replace('\n', " "))?;
-        c.validate()?;
+            .map_err(|e: toml::de::Error| ConfigError::parse(&origin, e))?;
+        c.validate(&origin)?;
         Ok(c)
     }
 
-    pub fn validate(&self) -> Result<(), String> {
-        let frac = |name: &str, v: f64| {
-            if v > 0.0 && v < 1.0 {
-                Ok(())
-            } else {
-                Err(format!("[adapt] {name} = {v}: must be in (0, 1)"))
+    /// Checks every field; the error names the first bad one (`origin` names the source).
+    pub fn validate(&self, origin: impl std::fmt::Display) -> Result<(), ConfigError> {
+        let bad = |name: &str, problem: String| Err(ConfigError::invalid(&origin, format!("adapt.{name}"), problem));
+        for (name, v) in [
+            ("holdout_fraction", self.holdout_fraction),
+            ("early_stop_fraction", self.early_stop_fraction),
+            ("min_gain", self.min_gain),
+        ] {
+            if !(v > 0.0 && v < 1.0) {
+                return bad(name, format!("{v}: must be in (0, 1)"));
             }
-        };
-        frac("holdout_fraction", self.holdout_fraction)?;
-        frac("early_stop_fraction", self.early_stop_fraction)?;
-        frac("min_gain", self.min_gain)?;
+        }
         if self.window_rows < 20 {
-            return Err(format!("[adapt] window_rows = {}: at least 20", self.window_rows));
+            return bad("window_rows", format!("{}: at least 20", self.window_rows));
         }
         if self.check_every_rows == 0 {
-            return Err("[adapt] check_every_rows must be at least 1".into());
+            return bad("check_every_rows", "must be at least 1".into());
         }
         if !(self.stale_factor >= 1.0 && self.stale_factor.is_finite()) {
-            return Err(format!("[adapt] stale_factor = {}: must be ≥ 1", self.stale_factor));
+            return bad("stale_factor", format!("{}: must be ≥ 1", self.stale_factor));
         }
         for (n, v) in [
             ("stale_min_deg", self.stale_min_deg),
             ("min_step_deg", self.min_step_deg),
         ] {
             if !(v >= 0.0 && v.is_finite()) {
-                return Err(format!("[adapt] {n} = {v}: must be ≥ 0"));
+                return bad(n, format!("{v}: must be ≥ 0"));
             }
         }
-        if self.epochs == 0 || self.batch_size == 0 || self.patience == 0 {
-            return Err("[adapt] epochs, patience and batch_size must be at least 1".into());
+        for (n, v) in [
+            ("epochs", self.epochs),
+            ("batch_size", self.batch_size),
+            ("patience", self.patience),
+        ] {
+            if v == 0 {
+                return bad(n, "must be at least 1".into());
+            }
         }
         if !(self.lr > 0.0 && self.lr.is_finite()) {
-            return Err(format!("[adapt] lr = {}: must be positive", self.lr));
+            return bad("lr", format!("{}: must be positive", self.lr));
         }
         if !(self.anchor >= 0.0 && self.anchor.is_finite()) {
-            return Err(format!("[adapt] anchor = {}: must be ≥ 0", self.anchor));
+            return bad("anchor", format!("{}: must be ≥ 0", self.anchor));
         }
         if !(self.interpolate > 0.0 && self.interpolate <= 1.0) {
-            return Err(format!("[adapt] interpolate = {}: must be in (0, 1]", self.interpolate));
+            return bad("interpolate", format!("{}: must be in (0, 1]", self.interpolate));
         }
         if self.directions.is_empty() {
-            return Err("[adapt] directions: name forward, inverse or both".into());
+            return bad("directions", "name forward, inverse or both".into());
         }
         for d in &self.directions {
             if d != "forward" && d != "inverse" {
-                return Err(format!("[adapt] directions: `{d}` is not forward or inverse"));
+                return bad("directions", format!("`{d}` is not forward or inverse"));
             }
         }
         Ok(())

@@ -468,8 +468,10 @@ fn export_in_producer_row(o: &BridgeBenchOptions, reader: Reader) -> Result<HopR
         "listen = [\"tcp/127.0.0.1:{port}\"]\nexport = {services_list}\nlow_latency = true"
     ))
     .map_err(|e| e.to_string())?;
-    p.validate()?;
-    let session = zenoh::open(p.zenoh_config()?).wait().map_err(|e| e.to_string())?;
+    p.validate("the bench's bridge").map_err(|e| e.to_string())?;
+    let session = zenoh::open(p.zenoh_config().map_err(|e| e.to_string())?)
+        .wait()
+        .map_err(|e| e.to_string())?;
     let zid = session.zid().to_string();
     let _token = session
         .liveliness()
@@ -542,8 +544,10 @@ pub fn raw_zenoh_peer(connect: &str, count: usize, low_latency: bool) -> Result<
     use zenoh::Wait;
     let p: crate::BridgeParams = toml::from_str(&format!("connect = [\"{connect}\"]\nlow_latency = {low_latency}"))
         .map_err(|e| e.to_string())?;
-    p.validate()?;
-    let session = zenoh::open(p.zenoh_config()?).wait().map_err(|e| e.to_string())?;
+    p.validate("the bench's bridge").map_err(|e| e.to_string())?;
+    let session = zenoh::open(p.zenoh_config().map_err(|e| e.to_string())?)
+        .wait()
+        .map_err(|e| e.to_string())?;
     let (tx, rx) = crossbeam::channel::unbounded::<(u64, u64)>();
     let _sub = session
         .declare_subscriber(RAW_KEY)
@@ -579,14 +583,16 @@ pub fn raw_zenoh_peer(connect: &str, count: usize, low_latency: bool) -> Result<
 
 /// Zenoh alone between two processes on loopback (this process publishes, a `bridge-peer`
 /// child receives): what the bridge's network hop costs on this machine without bowden.
-pub fn raw_zenoh_row(o: &BridgeBenchOptions, low_latency: bool) -> Result<HopRow, String> {
+fn raw_zenoh_row(o: &BridgeBenchOptions, low_latency: bool) -> Result<HopRow, String> {
     use zenoh::Wait;
     let port = crate::free_loopback_port().map_err(|e| format!("finding a free port: {e}"))?;
     let p: crate::BridgeParams = toml::from_str(&format!(
         "listen = [\"tcp/127.0.0.1:{port}\"]\nlow_latency = {low_latency}"
     ))
     .map_err(|e| e.to_string())?;
-    let session = zenoh::open(p.zenoh_config()?).wait().map_err(|e| e.to_string())?;
+    let session = zenoh::open(p.zenoh_config().map_err(|e| e.to_string())?)
+        .wait()
+        .map_err(|e| e.to_string())?;
     // The same publisher settings as a bridge's exports.
     let publisher = crate::export_publisher(&session, RAW_KEY.to_string()).map_err(|e| e.to_string())?;
     let args = [
@@ -726,7 +732,7 @@ pub fn raw_tcp_peer(connect: &str, count: usize) -> Result<Vec<u64>, String> {
 /// A plain TCP socket between two processes on loopback (this process writes, a `tcp-peer`
 /// child reads), at the rate of the bridge rows: the floor under every network row, so that a
 /// bridge or Zenoh figure can be read as what it adds to the machine's own hop.
-pub fn raw_tcp_row(o: &BridgeBenchOptions) -> Result<HopRow, String> {
+fn raw_tcp_row(o: &BridgeBenchOptions) -> Result<HopRow, String> {
     use std::io::Write;
     let listener = std::net::TcpListener::bind("127.0.0.1:0").map_err(|e| format!("binding a loopback port: {e}"))?;
     let port = listener.local_addr().map_err(|e| e.to_string())?.port();

@@ -272,12 +272,12 @@ fn build_err(env: &StageEnv<'_>, what: &str, e: impl std::fmt::Display) -> Stage
 impl BridgeStage {
     pub fn from_env(env: &StageEnv<'_>) -> Result<Self, StageBuildError> {
         let params: BridgeParams = env.params()?;
-        params.validate().map_err(|p| {
-            env.error(format!(
-                "{}: [node.params] of `{}`: {p}",
+        params
+            .validate(format_args!(
+                "{}: [node.params] of `{}`",
                 env.pipeline.origin, env.spec.name
             ))
-        })?;
+            .map_err(|e| env.error(e.to_string()))?;
         // The pipeline config validated the service lists (kind `bridge`): imports are this
         // stage's outputs, exports its side inputs.
         let export_services = env.spec.side_inputs.clone();

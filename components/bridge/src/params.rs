@@ -1,5 +1,6 @@
 //! `[node.params]` of a `bridge` stage, validated, and the Zenoh configuration they make.
 
+use bowden_interfaces::config::ConfigError;
 use serde::Deserialize;
 
 /// Bridge parameters.
@@ -78,26 +79,32 @@ impl BridgeParams {
         self.low_latency.unwrap_or(!self.carries_frames())
     }
 
-    /// Checks what the pipeline config does not: endpoints, key prefix, timings.
-    pub fn validate(&self) -> Result<(), String> {
+    /// Checks what the pipeline config does not: endpoints, key prefix, timings. `origin`
+    /// names the parameters in errors (e.g. "configs/bridge-a.toml: [node.params] of `link`").
+    pub fn validate(&self, origin: impl std::fmt::Display) -> Result<(), ConfigError> {
+        let bad = |field: &str, problem: String| Err(ConfigError::invalid(&origin, field, problem));
         if self.low_latency == Some(true) && self.carries_frames() {
-            return Err(
-                "`low_latency = true` with `bowden/rgbd_frame`: Zenoh's low-latency transport does \
-                        not fragment and cannot carry a frame; leave `low_latency` unset or false, or bridge \
-                        frames with a second bridge stage"
+            return bad(
+                "low_latency",
+                "`true` with `bowden/rgbd_frame`: Zenoh's low-latency transport does not fragment and \
+                 cannot carry a frame; leave `low_latency` unset or false, or bridge frames with a second \
+                 bridge stage"
                     .into(),
             );
         }
         if self.listen.is_empty() && self.connect.is_empty() {
-            return Err(
-                "a bridge needs `listen = [...]` or `connect = [...]` endpoints: without either \
-                        it can never reach its peer"
+            return bad(
+                "listen",
+                "a bridge needs `listen = [...]` or `connect = [...]` endpoints: without either it can \
+                 never reach its peer"
                     .into(),
             );
         }
         for (key, list) in [("listen", &self.listen), ("connect", &self.connect)] {
             for e in list.iter() {
-                check_endpoint(e).map_err(|p| format!("`{key}` endpoint `{e}`: {p}"))?;
+                if let Err(p) = check_endpoint(e) {
+                    return bad(key, format!("endpoint `{e}`: {p}"));
+                }
             }
         }
         let kp = &self.key_prefix;
@@ -109,21 +116,22 @@ impl BridgeParams {
                 .bytes()
                 .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-' || b == b'/')
         {
-            return Err(format!(
-                "`key_prefix` `{kp}`: must be chunks of [A-Za-z0-9_-] separated by single `/`"
-            ));
+            return bad(
+                "key_prefix",
+                format!("`{kp}`: must be chunks of [A-Za-z0-9_-] separated by single `/`"),
+            );
         }
         if !(100..=60_000).contains(&self.lease_ms) {
-            return Err(format!("`lease_ms` {}: must be in 100..=60000", self.lease_ms));
+            return bad("lease_ms", format!("{}: must be in 100..=60000", self.lease_ms));
         }
         if self.peer_timeout_ms == 0 {
-            return Err("`peer_timeout_ms` must be positive".into());
+            return bad("peer_timeout_ms", "must be positive".into());
         }
         if self.max_frame_bytes == 0 || self.max_frame_bytes > 64 << 20 {
-            return Err(format!(
-                "`max_frame_bytes` {}: must be in 1..=67108864",
-                self.max_frame_bytes
-            ));
+            return bad(
+                "max_frame_bytes",
+                format!("{}: must be in 1..=67108864", self.max_frame_bytes),
+            );
         }
         Ok(())
     }
@@ -145,7 +153,7 @@ impl BridgeParams {
 
     /// A peer-to-peer Zenoh session that opens exactly the configured endpoints: no multicast
     /// scouting, no gossip, no listener unless `listen` is given.
-    pub fn zenoh_config(&self) -> Result<zenoh::Config, String> {
+    pub fn zenoh_config(&self) -> Result<zenoh::Config, ConfigError> {
         let list = |v: &[String]| {
             format!(
                 "[{}]",
@@ -155,7 +163,7 @@ impl BridgeParams {
         let mut c = zenoh::Config::default();
         let mut set = |k: &str, v: String| {
             c.insert_json5(k, &v)
-                .map_err(|e| format!("zenoh config `{k}` = {v}: {e}"))
+                .map_err(|e| ConfigError::invalid("the Zenoh session config", k, format!("{v}: {e}")))
         };
         set("mode", "\"peer\"".into())?;
         set("listen/endpoints", list(&self.listen))?;
@@ -197,7 +205,7 @@ mod tests {
 
     fn parse(t: &str) -> Result<BridgeParams, String> {
         let p: BridgeParams = toml::from_str(t).map_err(|e| e.to_string())?;
-        p.validate()?;
+        p.validate("test").map_err(|e| e.to_string())?;
         Ok(p)
     }
 
@@ -206,7 +214,7 @@ mod tests {
         let e = parse("export = [\"bowden/plant_state\"]").unwrap_err();
         assert!(e.contains("listen") && e.contains("connect"), "{e}");
         let e = parse("listen = [\"udp/1.2.3.4:7\"]").unwrap_err();
-        assert!(e.contains("`listen` endpoint `udp/1.2.3.4:7`"), "{e}");
+        assert!(e.contains("`listen`: endpoint `udp/1.2.3.4:7`"), "{e}");
         let e = parse("connect = [\"tcp/host\"]").unwrap_err();
         assert!(e.contains(":PORT"), "{e}");
         let e = parse("connect = [\"tcp/host:99999\"]").unwrap_err();

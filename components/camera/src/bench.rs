@@ -2,7 +2,6 @@
 //! (`bowden bench camera`). The criterion bench (`cargo bench --bench camera`) measures one
 //! fixed scene; this one varies the scene the way the runtime does.
 
-use hdrhistogram::Histogram;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
@@ -11,6 +10,8 @@ use std::time::Instant;
 use bowden_kinematics::JointsDeg;
 
 use crate::{CameraError, SyntheticCamera};
+use bowden_interfaces::config::ConfigError;
+use bowden_latency::{LatencyHistogram, Percentiles};
 
 /// Render latency of one camera over many frames.
 #[derive(Debug, Clone, Serialize, PartialEq)]
@@ -18,11 +19,9 @@ pub struct RenderLatency {
     pub frames: u64,
     pub width: u32,
     pub height: u32,
-    pub p50_ns: u64,
-    pub p99_ns: u64,
-    pub p999_ns: u64,
-    pub max_ns: u64,
-    pub mean_ns: f64,
+    /// Wall time per frame.
+    #[serde(flatten)]
+    pub latency: Percentiles,
     /// Frames per second at the median latency.
     pub fps_at_p50: f64,
 }
@@ -37,11 +36,11 @@ impl RenderLatency {
             self.frames,
             self.width,
             self.height,
-            ms(self.p50_ns),
-            ms(self.p99_ns),
-            ms(self.p999_ns),
-            ms(self.max_ns),
-            self.mean_ns / 1e6,
+            ms(self.latency.p50_ns),
+            ms(self.latency.p99_ns),
+            ms(self.latency.p999_ns),
+            ms(self.latency.max_ns),
+            self.latency.mean_ns / 1e6,
             self.fps_at_p50
         )
     }
@@ -74,43 +73,29 @@ pub fn render_latency(
     progress: &mut dyn FnMut(u64),
 ) -> Result<RenderLatency, CameraError> {
     if qs.is_empty() {
-        return Err(CameraError::Invalid {
-            path: "<bench>".into(),
-            field: "configurations".into(),
-            problem: "need at least one configuration to render".into(),
-        });
+        return Err(
+            ConfigError::invalid("<bench>", "configurations", "need at least one configuration to render").into(),
+        );
     }
     let mut payload = vec![0u8; cam.payload_len()];
-    // 1 µs .. 10 s at 3 significant digits; creation only fails on invalid bounds.
-    let mut hist = Histogram::<u64>::new_with_bounds(1_000, 10_000_000_000, 3).map_err(|e| CameraError::Invalid {
-        path: "<bench>".into(),
-        field: "histogram".into(),
-        problem: e.to_string(),
-    })?;
-    let mut sum_ns = 0f64;
+    let mut hist = LatencyHistogram::new();
     for k in 0..frames {
         let q = qs[(k as usize) % qs.len()];
         let t = Instant::now();
         cam.render_into_payload(&q, k, &mut payload)?;
-        let ns = (t.elapsed().as_nanos() as u64).clamp(1_000, 10_000_000_000);
-        hist.saturating_record(ns);
-        sum_ns += ns as f64;
+        hist.record(t.elapsed().as_nanos() as u64);
         if k % 16 == 15 {
             progress(16);
         }
     }
     progress(frames % 16);
-    let p50 = hist.value_at_quantile(0.5);
+    let latency = hist.percentiles();
     Ok(RenderLatency {
         frames,
         width: cam.width(),
         height: cam.height(),
-        p50_ns: p50,
-        p99_ns: hist.value_at_quantile(0.99),
-        p999_ns: hist.value_at_quantile(0.999),
-        max_ns: hist.max(),
-        mean_ns: sum_ns / frames.max(1) as f64,
-        fps_at_p50: 1e9 / p50.max(1) as f64,
+        latency,
+        fps_at_p50: 1e9 / latency.p50_ns.max(1) as f64,
     })
 }
 
@@ -134,7 +119,8 @@ mod tests {
         let mut done = 0;
         let r = render_latency(&mut cam, &qs, 21, &mut |n| done += n).expect("bench");
         assert_eq!((r.frames, done, r.width, r.height), (21, 21, 640, 480));
-        assert!(r.p50_ns <= r.p99_ns && r.p99_ns <= r.p999_ns && r.p999_ns <= r.max_ns);
+        let l = r.latency;
+        assert!(l.count == 21 && l.p50_ns <= l.p99_ns && l.p99_ns <= l.p999_ns && l.p999_ns <= l.max_ns);
         assert!(r.to_markdown().contains("| 21 | 640x480 |"));
         assert!(render_latency(&mut cam, &[], 1, &mut |_| {}).is_err());
     }

@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 use crate::CameraError;
+use bowden_interfaces::config::ConfigError;
 
 /// Pinhole intrinsics of the colour-aligned RGBD stream. Pixel (u, v) with integer
 /// coordinates is the centre of that pixel (OpenCV / librealsense convention):
@@ -172,19 +173,13 @@ impl CameraConfig {
     /// Reads and validates a camera file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, CameraError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|cause| CameraError::Read {
-            path: path.to_path_buf(),
-            cause,
-        })?;
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::io(path.display(), source))?;
         Self::parse(&text, path)
     }
 
     /// Parses and validates TOML text; `path` only names the source in errors.
     pub fn parse(text: &str, path: &Path) -> Result<Self, CameraError> {
-        let cfg: CameraConfig = toml::from_str(text).map_err(|e| CameraError::Parse {
-            path: path.to_path_buf(),
-            message: e.to_string().replace('\n', " "),
-        })?;
+        let cfg: CameraConfig = toml::from_str(text).map_err(|e| ConfigError::parse(path.display(), e))?;
         cfg.validate(path)?;
         Ok(cfg)
     }
@@ -197,11 +192,8 @@ impl CameraConfig {
 
     /// Checks every field; the error names the first bad one.
     pub fn validate(&self, path: &Path) -> Result<(), CameraError> {
-        let bad = |field: &str, problem: String| CameraError::Invalid {
-            path: path.to_path_buf(),
-            field: field.to_string(),
-            problem,
-        };
+        let bad =
+            |field: &str, problem: String| CameraError::from(ConfigError::invalid(path.display(), field, problem));
         let k = &self.intrinsics;
         for (f, v) in [
             ("intrinsics.width_px", k.width_px),

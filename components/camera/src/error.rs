@@ -11,16 +11,9 @@ pub enum CameraError {
     Read { path: PathBuf, cause: std::io::Error },
     #[error("{path}: cannot write: {cause}")]
     Write { path: PathBuf, cause: std::io::Error },
-    #[error("{path}: malformed TOML: {message}")]
-    Parse { path: PathBuf, message: String },
-    #[error("{path}: field `{field}`: {problem}")]
-    Invalid {
-        path: PathBuf,
-        field: String,
-        problem: String,
-    },
+    /// A camera, robot or marker file that cannot be used, or a bad argument (origin "<bench>").
     #[error(transparent)]
-    Kinematics(#[from] bowden_kinematics::ConfigError),
+    Config(#[from] bowden_interfaces::config::ConfigError),
     #[error("q{joint} = {value_deg} deg is not a finite number")]
     NonFiniteJoint { joint: usize, value_deg: f64 },
     #[error("{buffer} buffer has {got} elements, expected {expected} for a {width}x{height} frame")]

@@ -13,7 +13,7 @@ use crate::prefix::{PrefixSync, PrefixWorkerOptions};
 use crate::refine::StopReason;
 use bowden_interfaces::model::Direction;
 use bowden_kinematics::{Robot, N_JOINTS};
-use hdrhistogram::Histogram;
+use bowden_latency::{LatencyHistogram, Percentiles};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -105,16 +105,10 @@ pub struct Latency {
     /// True when the prefix update ran in `Compensator::prepare` after each step (off the
     /// target → command path) instead of at the start of the next step; its own percentiles
     /// are in `prepare_*`.
-    pub prepare_split: bool,
-    pub prepare_p50_ns: u64,
-    pub prepare_p999_ns: u64,
-    pub prepare_max_ns: u64,
-    pub steps: u64,
-    pub p50_ns: u64,
-    pub p99_ns: u64,
-    pub p999_ns: u64,
-    pub max_ns: u64,
-    pub mean_ns: f64,
+    pub prepare: Option<Percentiles>,
+    /// The steps' latency (`count` steps).
+    #[serde(flatten)]
+    pub latency: Percentiles,
     pub mean_forward_evals: f64,
     pub max_forward_evals: u32,
     /// Fraction of steps after which the history changed (prefix recomputed next step).
@@ -131,7 +125,7 @@ impl Latency {
     /// A row with the percentiles of `h` and nothing else measured (no prepare split, no model
     /// evaluations, no history changes).
     fn of(
-        h: &Histogram<u64>,
+        h: &LatencyHistogram,
         scenario: Scenario,
         mode: Mode,
         evaluator: &'static str,
@@ -144,16 +138,8 @@ impl Latency {
             evaluator,
             paced,
             prefix,
-            prepare_split: false,
-            prepare_p50_ns: 0,
-            prepare_p999_ns: 0,
-            prepare_max_ns: 0,
-            steps: h.len(),
-            p50_ns: h.value_at_quantile(0.5),
-            p99_ns: h.value_at_quantile(0.99),
-            p999_ns: h.value_at_quantile(0.999),
-            max_ns: h.max(),
-            mean_ns: h.mean(),
+            prepare: None,
+            latency: h.percentiles(),
             mean_forward_evals: 0.0,
             max_forward_evals: 0,
             history_change_fraction: 0.0,
@@ -303,9 +289,8 @@ fn sleep_to_release(start: std::time::Instant, period: Option<std::time::Duratio
     }
 }
 
-/// 1 ns … 60 s at 3 significant digits.
-fn histogram() -> Histogram<u64> {
-    Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3).expect("valid bounds")
+fn histogram() -> LatencyHistogram {
+    LatencyHistogram::new()
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -342,9 +327,9 @@ fn measure(
             comp.prepare();
         }
         if i >= warmup {
-            h.saturating_record(out.elapsed_ns.max(1));
+            h.record(out.elapsed_ns);
             if split {
-                hp.saturating_record(prep_ns.max(1));
+                hp.record(prep_ns);
             }
             evals += out.forward_evals as u64;
             max_evals = max_evals.max(out.forward_evals);
@@ -363,10 +348,7 @@ fn measure(
         (_, PrefixAt::Worker) => "worker",
     };
     Latency {
-        prepare_split: split,
-        prepare_p50_ns: if split { hp.value_at_quantile(0.5) } else { 0 },
-        prepare_p999_ns: if split { hp.value_at_quantile(0.999) } else { 0 },
-        prepare_max_ns: if split { hp.max() } else { 0 },
+        prepare: split.then(|| hp.percentiles()),
         mean_forward_evals: evals as f64 / n,
         max_forward_evals: max_evals,
         history_change_fraction: changes as f64 / n,
@@ -402,7 +384,7 @@ fn measure_spin(
         }
         let ns = t0.elapsed().as_nanos() as u64;
         if i >= warmup {
-            h.saturating_record(ns.max(1));
+            h.record(ns);
             progress(1);
         }
     }
@@ -504,7 +486,7 @@ pub fn run(opts: &BenchOptions, robot: &Robot, progress: &mut dyn FnMut(u64)) ->
             if mode == Mode::Paper && at == PrefixAt::InStep {
                 paper_inc = Some(lat.clone());
             }
-            let matched = (at == PrefixAt::Worker).then_some(lat.p50_ns);
+            let matched = (at == PrefixAt::Worker).then_some(lat.latency.p50_ns);
             rows.push(lat);
             if let Some(length_ns) = matched {
                 drop(comp);
@@ -531,9 +513,9 @@ pub fn run(opts: &BenchOptions, robot: &Robot, progress: &mut dyn FnMut(u64)) ->
         if let Some(p) = paper_inc {
             ratios.push(Ratio {
                 scenario,
-                p50: naive.p50_ns as f64 / p.p50_ns.max(1) as f64,
-                mean: naive.mean_ns / p.mean_ns.max(1.0),
-                p999: naive.p999_ns as f64 / p.p999_ns.max(1) as f64,
+                p50: naive.latency.p50_ns as f64 / p.latency.p50_ns.max(1) as f64,
+                mean: naive.latency.mean_ns / p.latency.mean_ns.max(1.0),
+                p999: naive.latency.p999_ns as f64 / p.latency.p999_ns.max(1) as f64,
             });
         }
         rows.push(naive);
@@ -611,7 +593,7 @@ impl BenchReport {
             }
         }
         let us = |ns: u64| (ns.max(1) as f64) / 1000.0;
-        let x_max = self.rows.iter().map(|r| us(r.max_ns)).fold(1.0, f64::max) * 2.0;
+        let x_max = self.rows.iter().map(|r| us(r.latency.max_ns)).fold(1.0, f64::max) * 2.0;
         let mut chart = ChartBuilder::on(&root)
             .margin(10)
             .x_label_area_size(40)
@@ -640,25 +622,29 @@ impl BenchReport {
                 .collect()
         };
         chart
-            .draw_series(pts(&|r| r.p50_ns).into_iter().map(|p| Circle::new(p, 5, BLUE.filled())))
+            .draw_series(
+                pts(&|r| r.latency.p50_ns)
+                    .into_iter()
+                    .map(|p| Circle::new(p, 5, BLUE.filled())),
+            )
             .map_err(|e| err(&e))?;
         chart
             .draw_series(
-                pts(&|r| r.p99_ns)
+                pts(&|r| r.latency.p99_ns)
                     .into_iter()
                     .map(|p| TriangleMarker::new(p, 6, GREEN.filled())),
             )
             .map_err(|e| err(&e))?;
         chart
             .draw_series(
-                pts(&|r| r.p999_ns)
+                pts(&|r| r.latency.p999_ns)
                     .into_iter()
                     .map(|p| Cross::new(p, 6, RED.stroke_width(2))),
             )
             .map_err(|e| err(&e))?;
         chart
             .draw_series(
-                pts(&|r| r.max_ns)
+                pts(&|r| r.latency.max_ns)
                     .into_iter()
                     .map(|p| Circle::new(p, 2, BLACK.filled())),
             )
@@ -684,15 +670,9 @@ impl BenchReport {
         s += "| scenario | mode | evaluator | prefix | steps | p50 µs | p99 µs | p99.9 µs | max µs | mean µs | fwd evals (mean/max) | history changes | at threshold | prepare p50 / p99.9 / max µs | on older prefix (max lag) |\n";
         s += "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
         for r in &self.rows {
-            let prep = if r.prepare_split {
-                format!(
-                    "{} / {} / {}",
-                    us(r.prepare_p50_ns),
-                    us(r.prepare_p999_ns),
-                    us(r.prepare_max_ns)
-                )
-            } else {
-                "–".to_string()
+            let prep = match &r.prepare {
+                Some(p) => format!("{} / {} / {}", us(p.p50_ns), us(p.p999_ns), us(p.max_ns)),
+                None => "–".to_string(),
             };
             let lag = if r.prefix == "worker" {
                 format!("{:.2} % ({})", 100.0 * r.lagged_fraction, r.max_prefix_lag)
@@ -705,12 +685,12 @@ impl BenchReport {
                 r.mode,
                 r.evaluator,
                 r.prefix,
-                r.steps,
-                us(r.p50_ns),
-                us(r.p99_ns),
-                us(r.p999_ns),
-                us(r.max_ns),
-                r.mean_ns / 1000.0,
+                r.latency.count,
+                us(r.latency.p50_ns),
+                us(r.latency.p99_ns),
+                us(r.latency.p999_ns),
+                us(r.latency.max_ns),
+                r.latency.mean_ns / 1000.0,
                 r.mean_forward_evals,
                 r.max_forward_evals,
                 100.0 * r.history_change_fraction,
@@ -753,12 +733,12 @@ impl BenchReport {
                     "| {} | {} | {} / {} | {} | {} | {} | {} |\n",
                     step.scenario.as_str(),
                     step.mode,
-                    us(step.p50_ns),
-                    us(step.p999_ns),
-                    pass.map_or("–".into(), |p| us(p.p999_ns)),
-                    pass.map_or("–".into(), |p| ratio(step.p999_ns, p.p999_ns)),
-                    us(spin.p999_ns),
-                    ratio(step.p999_ns, spin.p999_ns),
+                    us(step.latency.p50_ns),
+                    us(step.latency.p999_ns),
+                    pass.map_or("–".into(), |p| us(p.latency.p999_ns)),
+                    pass.map_or("–".into(), |p| ratio(step.latency.p999_ns, p.latency.p999_ns)),
+                    us(spin.latency.p999_ns),
+                    ratio(step.latency.p999_ns, spin.latency.p999_ns),
                 );
             }
         }
@@ -788,16 +768,15 @@ mod tests {
             evaluator,
             paced: false,
             prefix: "in step",
-            prepare_split: false,
-            prepare_p50_ns: 0,
-            prepare_p999_ns: 0,
-            prepare_max_ns: 0,
-            steps: 10,
-            p50_ns: p50,
-            p99_ns: 2 * p50,
-            p999_ns: 3 * p50,
-            max_ns: 4 * p50,
-            mean_ns: p50 as f64,
+            prepare: None,
+            latency: Percentiles {
+                count: 10,
+                p50_ns: p50,
+                p99_ns: 2 * p50,
+                p999_ns: 3 * p50,
+                max_ns: 4 * p50,
+                mean_ns: p50 as f64,
+            },
             mean_forward_evals: 51.0,
             max_forward_evals: 51,
             history_change_fraction: 0.01,
@@ -855,7 +834,7 @@ mod tests {
         worker.prefix = "worker";
         let mut spin = row(Mode::Paper, "spin", 10_000);
         spin.prefix = "none";
-        spin.p999_ns = 20_000;
+        spin.latency.p999_ns = 20_000;
         let r = BenchReport {
             rows: vec![pass, worker, spin],
             ..r
@@ -878,9 +857,14 @@ mod tests {
         let l = measure_spin(20_000, 10, 200, Scenario::DatasetStep, Mode::Newton, None, &mut |n| {
             ticks += n
         });
-        assert_eq!((l.steps, ticks, l.evaluator, l.mode), (200, 200, "spin", Mode::Newton));
+        assert_eq!(
+            (l.latency.count, ticks, l.evaluator, l.mode),
+            (200, 200, "spin", Mode::Newton)
+        );
         assert!(
-            l.p50_ns >= 20_000 && l.max_ns >= l.p999_ns && l.p999_ns >= l.p50_ns,
+            l.latency.p50_ns >= 20_000
+                && l.latency.max_ns >= l.latency.p999_ns
+                && l.latency.p999_ns >= l.latency.p50_ns,
             "{l:?}"
         );
     }

@@ -7,32 +7,7 @@ use crate::refine::{NewtonParams, PaperParams};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
-/// A bad controller config: what, where and why.
-#[derive(Debug, thiserror::Error)]
-pub enum ConfigError {
-    #[error("{path}: cannot read the controller config: {source}")]
-    Io {
-        path: String,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("{path}: {message}")]
-    Parse { path: String, message: String },
-    #[error("{path}: `{field}` = {value}: {reason}")]
-    Invalid {
-        path: String,
-        field: &'static str,
-        value: String,
-        reason: &'static str,
-    },
-    #[error("{path}: `{field}` = {value:?}: no such file (tried {tried})")]
-    ModelNotFound {
-        path: String,
-        field: &'static str,
-        value: String,
-        tried: String,
-    },
-}
+pub use bowden_interfaces::config::ConfigError;
 
 /// Compensation mode (the names of `bowden_interfaces::CompensationMode`).
 #[derive(
@@ -270,19 +245,13 @@ const SHIPPED: &str = include_str!("../../../configs/controller.toml");
 impl ControllerConfig {
     pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
         let p = path.as_ref();
-        let text = std::fs::read_to_string(p).map_err(|source| ConfigError::Io {
-            path: p.display().to_string(),
-            source,
-        })?;
+        let text = std::fs::read_to_string(p).map_err(|source| ConfigError::io(p.display(), source))?;
         Self::parse(&text, p)
     }
 
     /// Parses and validates; `path` names the file in errors and anchors relative paths.
     pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
-        let mut c: ControllerConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
-            path: path.display().to_string(),
-            message: e.to_string().trim().replace('\n', " "),
-        })?;
+        let mut c: ControllerConfig = toml::from_str(text).map_err(|e| ConfigError::parse(path.display(), e))?;
         c.source = Some(path.to_path_buf());
         c.validate()?;
         Ok(c)
@@ -317,12 +286,7 @@ impl ControllerConfig {
     pub fn validate(&self) -> Result<(), ConfigError> {
         let path = self.path_name();
         let bad = |field: &'static str, value: String, reason: &'static str| {
-            Err(ConfigError::Invalid {
-                path: path.clone(),
-                field,
-                value,
-                reason,
-            })
+            Err(ConfigError::invalid(&path, field, format!("{value}: {reason}")))
         };
         let p = &self.paper;
         if !(1..=100_000).contains(&p.iterations) {
@@ -449,12 +413,11 @@ impl ControllerConfig {
             return if p.exists() {
                 Ok(p.to_path_buf())
             } else {
-                Err(ConfigError::ModelNotFound {
-                    path: self.path_name(),
+                Err(ConfigError::invalid(
+                    self.path_name(),
                     field,
-                    value: p.display().to_string(),
-                    tried: p.display().to_string(),
-                })
+                    format!("{:?}: no such file", p.display().to_string()),
+                ))
             };
         }
         let mut tried = Vec::new();
@@ -470,16 +433,16 @@ impl ControllerConfig {
                 return Ok(t.clone());
             }
         }
-        Err(ConfigError::ModelNotFound {
-            path: self.path_name(),
+        let tried = tried
+            .iter()
+            .map(|t| t.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ");
+        Err(ConfigError::invalid(
+            self.path_name(),
             field,
-            value: p.display().to_string(),
-            tried: tried
-                .iter()
-                .map(|t| t.display().to_string())
-                .collect::<Vec<_>>()
-                .join(", "),
-        })
+            format!("{:?}: no such file (tried {tried})", p.display().to_string()),
+        ))
     }
 }
 

@@ -47,4 +47,4 @@ pub use model::{Evaluator, LoadOptions, Model, ModelError, TractEvaluator};
 pub use net::{IncrementalNet, Net, NetSummary};
 pub use prefix::{PrefixSync, PrefixWorkerOptions};
 pub use refine::{newton_refine, paper_refine, NewtonParams, PaperParams, RefineResult, StopReason, WindowModel};
-pub use swap::{Loaded, LoaderSettings, ModelLoader};
+pub use swap::{Loaded, LoaderSettings, ModelLoader, SwapError};

@@ -11,11 +11,11 @@
 
 use crate::compensator::PreparedModels;
 use crate::config::EvaluatorChoice;
-use crate::model::{Evaluator, LoadOptions, Model};
+use crate::model::{Evaluator, LoadOptions, Model, ModelError};
 use bowden_interfaces::model::Direction;
 use bowden_interfaces::{fnv1a64, ModelUpdate};
 use crossbeam::channel::{bounded, select, Receiver, Sender, TrySendError};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -224,41 +224,87 @@ fn loader_main(
     }
 }
 
+/// Why a model update was refused (the models in use stay).
+#[derive(Debug, thiserror::Error)]
+pub enum SwapError {
+    #[error("the update's directory is not UTF-8")]
+    DirNotUtf8,
+    #[error("the update's directory `{0}` is not absolute")]
+    DirNotAbsolute(PathBuf),
+    #[error("the update names no model")]
+    NoModel,
+    #[error("{path}: no {direction} model is running to be replaced")]
+    NothingToReplace { path: String, direction: Direction },
+    #[error("{path}: {source}")]
+    Read {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error(
+        "{path}: content hash {got:016x} is not the announced {announced:016x} (the file changed or was cut short)"
+    )]
+    Hash { path: String, got: u64, announced: u64 },
+    /// Corrupt, off the contract, or refused by the load check.
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    #[error(
+        "{path}: a {direction} model with {joints} joints and L = {seq_len}, the running {direction} model has {running_joints} joints and L = {running_seq_len}"
+    )]
+    Mismatch {
+        path: String,
+        direction: Direction,
+        joints: usize,
+        seq_len: usize,
+        running_joints: usize,
+        running_seq_len: usize,
+    },
+}
+
 /// Reads, checks and prepares the models an update announces.
-pub fn prepare(s: &LoaderSettings, u: &ModelUpdate) -> Result<PreparedModels, String> {
-    let dir = u.dir().ok_or("the update's directory is not UTF-8")?;
+pub fn prepare(s: &LoaderSettings, u: &ModelUpdate) -> Result<PreparedModels, SwapError> {
+    let dir = u.dir().ok_or(SwapError::DirNotUtf8)?;
     let dir = Path::new(dir);
     if !dir.is_absolute() {
-        return Err(format!("the update's directory `{}` is not absolute", dir.display()));
+        return Err(SwapError::DirNotAbsolute(dir.to_path_buf()));
     }
     if u.fwd_hash == 0 && u.inv_hash == 0 {
-        return Err("the update names no model".into());
+        return Err(SwapError::NoModel);
     }
-    let one = |file: &str, hash: u64, want: Direction, l: usize| -> Result<Option<Evaluator>, String> {
+    let one = |file: &str, hash: u64, want: Direction, l: usize| -> Result<Option<Evaluator>, SwapError> {
         if hash == 0 {
             return Ok(None);
         }
         let path = dir.join(file);
         let shown = path.display().to_string();
         if l == 0 {
-            return Err(format!("{shown}: no {want} model is running to be replaced"));
+            return Err(SwapError::NothingToReplace {
+                path: shown,
+                direction: want,
+            });
         }
-        let bytes = std::fs::read(&path).map_err(|e| format!("{shown}: {e}"))?;
+        let bytes = std::fs::read(&path).map_err(|source| SwapError::Read {
+            path: shown.clone(),
+            source,
+        })?;
         let got = fnv1a64(&bytes);
         if got != hash {
-            return Err(format!(
-                "{shown}: content hash {got:016x} is not the announced {hash:016x} (the file changed or was cut short)"
-            ));
+            return Err(SwapError::Hash {
+                path: shown,
+                got,
+                announced: hash,
+            });
         }
-        let m = Model::from_bytes(&bytes, &shown, Some(dir), &s.load).map_err(|e| e.to_string())?;
+        let m = Model::from_bytes(&bytes, &shown, Some(dir), &s.load)?;
         if m.metadata().direction != want || m.joints() != s.joints || m.seq_len() != l {
-            return Err(format!(
-                "{shown}: a {} model with {} joints and L = {}, the running {want} model has {} joints and L = {l}",
-                m.metadata().direction,
-                m.joints(),
-                m.seq_len(),
-                s.joints
-            ));
+            return Err(SwapError::Mismatch {
+                path: shown,
+                direction: m.metadata().direction,
+                joints: m.joints(),
+                seq_len: m.seq_len(),
+                running_joints: s.joints,
+                running_seq_len: l,
+            });
         }
         Ok(Some(match s.evaluator {
             EvaluatorChoice::Auto => m.evaluator(),

@@ -3,22 +3,9 @@
 //! load; every error names the file and the field.
 
 use serde::Deserialize;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-/// A configuration that could not be used.
-#[derive(Debug, thiserror::Error)]
-pub enum ConfigError {
-    #[error("{path}: cannot read: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
-    #[error("{path}: malformed TOML: {message}")]
-    Parse { path: PathBuf, message: String },
-    #[error("{path}: field `{field}`: {problem}")]
-    Invalid {
-        path: PathBuf,
-        field: String,
-        problem: String,
-    },
-}
+pub use bowden_interfaces::config::ConfigError;
 
 /// One colour class in HSV space. Hue in degrees on [0, 360); when `h_min_deg > h_max_deg`
 /// the range wraps through 0 (red). Saturation and value on [0, 1] (value = max(R,G,B)/255).
@@ -149,7 +136,7 @@ impl EstimatorConfig {
     pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
         let path = path.as_ref();
         let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
-            path: path.to_path_buf(),
+            origin: path.display().to_string(),
             source,
         })?;
         Self::parse(&text, path)
@@ -158,14 +145,14 @@ impl EstimatorConfig {
     /// Parses the text of a markers file; `path` is only used in error messages.
     pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
         let parse_err = |message: String| ConfigError::Parse {
-            path: path.to_path_buf(),
+            origin: path.display().to_string(),
             message: message.replace('\n', " "),
         };
         let table: toml::Table = toml::from_str(text).map_err(|e| parse_err(e.to_string()))?;
         let mut mine = toml::Table::new();
         for key in ["hsv", "estimator"] {
             let value = table.get(key).cloned().ok_or_else(|| ConfigError::Invalid {
-                path: path.to_path_buf(),
+                origin: path.display().to_string(),
                 field: key.into(),
                 problem: "missing table".into(),
             })?;
@@ -187,7 +174,7 @@ impl EstimatorConfig {
 
     fn validate(&self, path: &Path) -> Result<(), ConfigError> {
         let bad = |field: String, problem: String| ConfigError::Invalid {
-            path: path.to_path_buf(),
+            origin: path.display().to_string(),
             field,
             problem,
         };

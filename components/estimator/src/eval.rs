@@ -7,6 +7,7 @@
 use crate::{Estimator, MarkerStatus};
 use bowden_interfaces::{marker, JointEstimate, MarkerSet, RgbdFrameHeader, N_MARKERS};
 use bowden_kinematics::{JointsDeg, Robot, JOINT_NAMES, N_JOINTS};
+use bowden_latency::{LatencyHistogram, Percentiles};
 use nalgebra::Point3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -142,19 +143,38 @@ impl Rms {
     }
 }
 
+/// Why an evaluation stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    /// The frame source could not give frame `frame`.
+    #[error("rendering frame {frame} (q = {q_deg:?} deg): {message}")]
+    Source {
+        frame: u32,
+        q_deg: JointsDeg,
+        message: String,
+    },
+    /// The estimator refused frame `frame` as a whole.
+    #[error("frame {frame}: {source}")]
+    Frame {
+        frame: u32,
+        #[source]
+        source: crate::EstimatorError,
+    },
+}
+
 /// Runs the evaluation. `progress` is called after each frame with the number done.
 pub fn run_eval<S: FrameSource>(
     estimator: &mut Estimator,
     source: &mut S,
     opts: &EvalOptions,
     mut progress: impl FnMut(u32),
-) -> Result<EvalReport, String> {
+) -> Result<EvalReport, EvalError> {
     let (w, h) = (source.width(), source.height());
     let mut rgb = vec![0u8; w as usize * h as usize * 3];
     let mut depth = vec![0u16; w as usize * h as usize];
     estimator.reserve_frame(w, h);
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
-    let mut times = hdrhistogram::Histogram::<u64>::new_with_bounds(1, 10_000_000_000, 3).map_err(|e| e.to_string())?;
+    let mut times = LatencyHistogram::new();
     let (mut n_valid, mut n_partial, mut n_invalid) = (0u32, 0u32, 0u32);
     let mut marker_found = [0u32; N_MARKERS];
     let mut centre_all = Rms::default();
@@ -171,13 +191,17 @@ pub fn run_eval<S: FrameSource>(
             .map(|d| core::array::from_fn(|k| q[k] + if d > 0.0 { rng.random_range(-d..=d) } else { 0.0 }));
         let header = source
             .render(&q, i as u64, &mut rgb, &mut depth)
-            .map_err(|e| format!("rendering frame {i} (q = {q:?}): {e}"))?;
+            .map_err(|e| EvalError::Source {
+                frame: i,
+                q_deg: q,
+                message: e.to_string(),
+            })?;
         let t0 = Instant::now();
         estimator
             .estimate(&header, &rgb, &depth, hint, &mut ms, &mut je)
-            .map_err(|e| format!("frame {i}: {e}"))?;
+            .map_err(|source| EvalError::Frame { frame: i, source })?;
         let dt_ns = t0.elapsed().as_nanos() as u64;
-        times.record(dt_ns.max(1)).map_err(|e| e.to_string())?;
+        times.record(dt_ns);
 
         let truth = source.truth_centres_cam_mm(&q);
         for m in 0..N_MARKERS {
@@ -222,7 +246,7 @@ pub fn run_eval<S: FrameSource>(
         progress(i + 1);
     }
     let n = opts.frames.max(1) as f64;
-    let q_us = |p: f64| times.value_at_quantile(p) as f64 / 1e3;
+    let time = times.percentiles();
     let mut worst_frames: Vec<FrameRecord> = records.clone();
     // Incomplete frames first, then by joint error.
     worst_frames.sort_by(|a, b| {
@@ -251,10 +275,10 @@ pub fn run_eval<S: FrameSource>(
         joint_error_max_deg: core::array::from_fn(|k| joint[k].max()),
         paper_joint_error_rms_deg: core::array::from_fn(|k| paper[k].rms()),
         paper_joint_error_max_deg: core::array::from_fn(|k| paper[k].max()),
-        time_p50_us: q_us(0.5),
-        time_p99_us: q_us(0.99),
-        time_p999_us: q_us(0.999),
-        time_max_us: times.max() as f64 / 1e3,
+        time_p50_us: Percentiles::us(time.p50_ns),
+        time_p99_us: Percentiles::us(time.p99_ns),
+        time_p999_us: Percentiles::us(time.p999_ns),
+        time_max_us: Percentiles::us(time.max_ns),
         worst_frames,
         records,
     })
@@ -370,7 +394,15 @@ impl EvalReport {
     }
 
     /// Joint error against the true angle, one panel per joint, as SVG.
-    pub fn write_svg(&self, path: &Path) -> Result<(), String> {
+    pub fn write_svg(&self, path: &Path) -> Result<(), PlotError> {
+        self.draw_svg(path).map_err(|message| PlotError {
+            path: path.to_path_buf(),
+            message,
+        })
+    }
+
+    // plotters' errors are generic over the backend; the message is what a user can act on.
+    fn draw_svg(&self, path: &Path) -> Result<(), String> {
         use plotters::prelude::*;
         let root = SVGBackend::new(path, (1500, 900)).into_drawing_area();
         root.fill(&WHITE).map_err(|e| e.to_string())?;
@@ -471,4 +503,12 @@ impl EvalReport {
         root.present().map_err(|e| e.to_string())?;
         Ok(())
     }
+}
+
+/// A plot that could not be drawn or written.
+#[derive(Debug, thiserror::Error)]
+#[error("{path}: cannot draw the plot: {message}")]
+pub struct PlotError {
+    pub path: std::path::PathBuf,
+    pub message: String,
 }

@@ -1,24 +1,11 @@
 //! `configs/robot.toml`: geometry, joint limits and cable routing, validated on load.
 
 use serde::Deserialize;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use crate::N_JOINTS;
 
-/// A configuration that could not be used, naming the file and the field.
-#[derive(Debug, thiserror::Error)]
-pub enum ConfigError {
-    #[error("{path}: cannot read: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
-    #[error("{path}: malformed TOML: {message}")]
-    Parse { path: PathBuf, message: String },
-    #[error("{path}: field `{field}`: {problem}")]
-    Invalid {
-        path: PathBuf,
-        field: String,
-        problem: String,
-    },
-}
+pub use bowden_interfaces::config::ConfigError;
 
 /// Table I of the paper: the circular flexure hinge.
 #[derive(Debug, Clone, Deserialize, PartialEq)]
@@ -114,7 +101,7 @@ impl RobotConfig {
     pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
         let path = path.as_ref();
         let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
-            path: path.to_path_buf(),
+            origin: path.display().to_string(),
             source,
         })?;
         Self::parse(&text, path)
@@ -123,7 +110,7 @@ impl RobotConfig {
     /// Parses and validates TOML text; `path` is only used in error messages.
     pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
         let cfg: RobotConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
-            path: path.to_path_buf(),
+            origin: path.display().to_string(),
             message: e.to_string().replace('\n', " "),
         })?;
         cfg.validate(path)?;
@@ -132,7 +119,7 @@ impl RobotConfig {
 
     fn validate(&self, path: &Path) -> Result<(), ConfigError> {
         let bad = |field: &str, problem: String| ConfigError::Invalid {
-            path: path.to_path_buf(),
+            origin: path.display().to_string(),
             field: field.to_string(),
             problem,
         };

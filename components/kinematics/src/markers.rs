@@ -34,7 +34,7 @@ impl MarkerGeometry {
     pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
         let path = path.as_ref();
         let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
-            path: path.to_path_buf(),
+            origin: path.display().to_string(),
             source,
         })?;
         Self::parse(&text, path)
@@ -42,23 +42,23 @@ impl MarkerGeometry {
 
     pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
         let table: toml::Table = toml::from_str(text).map_err(|e| ConfigError::Parse {
-            path: path.to_path_buf(),
+            origin: path.display().to_string(),
             message: e.to_string().replace('\n', " "),
         })?;
         let geometry = table.get("geometry").cloned().ok_or_else(|| ConfigError::Invalid {
-            path: path.to_path_buf(),
+            origin: path.display().to_string(),
             field: "geometry".into(),
             problem: "missing table".into(),
         })?;
         let file: File = toml::Table::from_iter([("geometry".to_string(), geometry)])
             .try_into()
             .map_err(|e: toml::de::Error| ConfigError::Parse {
-                path: path.to_path_buf(),
+                origin: path.display().to_string(),
                 message: e.to_string().replace('\n', " "),
             })?;
         let g = file.geometry;
         let bad = |field: &str, problem: String| ConfigError::Invalid {
-            path: path.to_path_buf(),
+            origin: path.display().to_string(),
             field: format!("geometry.{field}"),
             problem,
         };

@@ -334,23 +334,26 @@ impl Dataset {
 }
 
 /// Angle unit of imported data.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    Serialize,
+    Deserialize,
+    strum::EnumString,
+    strum::IntoStaticStr,
+    strum::Display,
+    strum::VariantNames,
+)]
 #[serde(rename_all = "lowercase")]
+#[strum(serialize_all = "lowercase")]
 pub enum AngleUnit {
     #[default]
     Deg,
     Rad,
-}
-
-impl std::str::FromStr for AngleUnit {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "deg" => Ok(Self::Deg),
-            "rad" => Ok(Self::Rad),
-            _ => Err(format!("unit {s:?} is not deg or rad")),
-        }
-    }
 }
 
 /// How to read external data.

@@ -1,7 +1,7 @@
-//! A small reader for NumPy `.npy` files (format versions 1.0, 2.0 and 3.0): real robots'
-//! logs often come as `np.save` arrays, and pulling in a NumPy crate for one header is not
-//! worth it. Only what datasets need: 1-D or 2-D arrays of `float32` / `float64` (either
-//! byte order, C or Fortran order), returned as row-major `f64`.
+//! NumPy `.npy` files through the `npyz` crate: real robots' logs often come as `np.save`
+//! arrays. What datasets need: 1-D or 2-D arrays of `float32` / `float64` (either byte order,
+//! C or Fortran order), returned as row-major `f64`, with errors that name the file and what
+//! is wrong; and `float32` / `float64` files written as `np.save` writes them.
 
 use std::path::{Path, PathBuf};
 
@@ -16,16 +16,8 @@ pub enum NpyError {
     },
     #[error("{path}: not a .npy file (the magic string \\x93NUMPY is missing)")]
     BadMagic { path: PathBuf },
-    #[error("{path}: unsupported .npy format version {major}.{minor} (1.0, 2.0 and 3.0 are read)")]
-    Version { path: PathBuf, major: u8, minor: u8 },
-    #[error("{path}: the file ends inside its header ({len} bytes, header needs {needed})")]
-    Truncated { path: PathBuf, len: usize, needed: usize },
-    #[error("{path}: malformed header {header:?}: {what}")]
-    Header {
-        path: PathBuf,
-        header: String,
-        what: String,
-    },
+    #[error("{path}: malformed header: {what}")]
+    Header { path: PathBuf, what: String },
     #[error("{path}: dtype {descr:?} is not supported (only float32 '<f4'/'>f4' and float64 '<f8'/'>f8')")]
     Dtype { path: PathBuf, descr: String },
     #[error("{path}: shape {shape:?} has {ndim} dimensions; expected a 1-D or 2-D array")]
@@ -72,66 +64,26 @@ pub fn read_npy(path: &Path) -> Result<NpyMatrix, NpyError> {
 /// Parses the bytes of an `.npy` file; `path` only names the source in errors.
 pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<NpyMatrix, NpyError> {
     let p = || path.to_path_buf();
-    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
+    if !bytes.starts_with(b"\x93NUMPY") {
         return Err(NpyError::BadMagic { path: p() });
     }
-    let (major, minor) = (bytes[6], bytes[7]);
-    let (header_len, header_start) = match major {
-        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
-        2 | 3 => {
-            if bytes.len() < 12 {
-                return Err(NpyError::Truncated {
-                    path: p(),
-                    len: bytes.len(),
-                    needed: 12,
-                });
-            }
-            (
-                u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
-                12,
-            )
-        }
-        _ => {
-            return Err(NpyError::Version {
-                path: p(),
-                major,
-                minor,
-            })
-        }
-    };
-    let data_start = header_start + header_len;
-    if bytes.len() < data_start {
-        return Err(NpyError::Truncated {
-            path: p(),
-            len: bytes.len(),
-            needed: data_start,
-        });
-    }
-    // Version 3 allows UTF-8 in the header; versions 1 and 2 are latin-1 but what matters
-    // (keys, dtype, shape) is ASCII either way.
-    let header = String::from_utf8_lossy(&bytes[header_start..data_start]).into_owned();
-    let bad = |what: &str| NpyError::Header {
+    // The header first, so that what follows it is the payload whose length can be checked
+    // (npyz reads as many values as the shape says and would ignore trailing bytes).
+    let mut payload: &[u8] = bytes;
+    let header = npyz::NpyHeader::from_reader(&mut payload).map_err(|e| NpyError::Header {
         path: p(),
-        header: header.trim_end().to_string(),
-        what: what.to_string(),
+        what: e.to_string(),
+    })?;
+    let descr = match header.dtype() {
+        npyz::DType::Plain(ts) => ts.to_string(),
+        other => format!("{other:?}"),
     };
-    let descr = dict_value(&header, "descr").ok_or_else(|| bad("no 'descr' key"))?;
-    let descr = unquote(descr).ok_or_else(|| bad("'descr' is not a quoted string"))?;
-    let fortran = match dict_value(&header, "fortran_order").map(str::trim) {
-        Some(v) if v.starts_with("True") => true,
-        Some(v) if v.starts_with("False") => false,
-        _ => return Err(bad("no boolean 'fortran_order' key")),
-    };
-    let shape_text = dict_value(&header, "shape").ok_or_else(|| bad("no 'shape' key"))?;
-    let shape = parse_shape(shape_text).ok_or_else(|| bad("'shape' is not a tuple of integers"))?;
-
-    let (width, big_endian) = match descr.as_str() {
-        "<f4" | "=f4" | "f4" => (4, false),
-        ">f4" => (4, true),
-        "<f8" | "=f8" | "f8" => (8, false),
-        ">f8" => (8, true),
+    let width = match descr.trim_start_matches(['<', '>', '=', '|']) {
+        "f4" => 4,
+        "f8" => 8,
         _ => return Err(NpyError::Dtype { path: p(), descr }),
     };
+    let shape: Vec<usize> = header.shape().iter().map(|&d| d as usize).collect();
     let (rows, cols) = match shape.as_slice() {
         [n] => (*n, 1),
         [r, c] => (*r, *c),
@@ -143,9 +95,12 @@ pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<NpyMatrix, NpyError> {
             })
         }
     };
-    let count = rows.checked_mul(cols).ok_or_else(|| bad("shape overflows"))?;
-    let expected = count.checked_mul(width).ok_or_else(|| bad("shape overflows"))?;
-    let payload = &bytes[data_start..];
+    let overflow = || NpyError::Header {
+        path: p(),
+        what: format!("shape {shape:?} overflows"),
+    };
+    let count = rows.checked_mul(cols).ok_or_else(overflow)?;
+    let expected = count.checked_mul(width).ok_or_else(overflow)?;
     if payload.len() != expected {
         return Err(NpyError::DataLength {
             path: p(),
@@ -154,16 +109,22 @@ pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<NpyMatrix, NpyError> {
             actual: payload.len(),
         });
     }
-    let mut flat = Vec::with_capacity(count);
-    for chunk in payload.chunks_exact(width) {
-        let v = match (width, big_endian) {
-            (4, false) => f32::from_le_bytes([chunk[0], chunk[1], chunk[2], chunk[3]]) as f64,
-            (4, true) => f32::from_be_bytes([chunk[0], chunk[1], chunk[2], chunk[3]]) as f64,
-            (_, false) => f64::from_le_bytes(chunk.try_into().unwrap_or([0; 8])),
-            (_, true) => f64::from_be_bytes(chunk.try_into().unwrap_or([0; 8])),
-        };
-        flat.push(v);
-    }
+    let fortran = header.order() == npyz::Order::Fortran;
+    let npy = npyz::NpyFile::with_header(header, payload);
+    let read_err = |e: std::io::Error| NpyError::Header {
+        path: p(),
+        what: e.to_string(),
+    };
+    // npyz reads either byte order as the dtype says.
+    let flat: Vec<f64> = if width == 4 {
+        npy.into_vec::<f32>()
+            .map_err(read_err)?
+            .into_iter()
+            .map(f64::from)
+            .collect()
+    } else {
+        npy.into_vec::<f64>().map_err(read_err)?
+    };
     let data = if fortran && cols > 1 {
         let mut d = vec![0.0; count];
         for c in 0..cols {
@@ -183,69 +144,56 @@ pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<NpyMatrix, NpyError> {
     })
 }
 
-/// Writes a row-major 2-D `float64` array as an `.npy` (version 1.0), as `np.save` would.
+/// Writes a row-major 2-D array as an `.npy` (little-endian, C order), as `np.save` would.
+fn write_npy<T: npyz::Serialize + npyz::AutoSerialize + Copy>(
+    path: &Path,
+    rows: usize,
+    cols: usize,
+    data: &[T],
+) -> std::io::Result<()> {
+    if data.len() != rows * cols {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!("{}: {} values for a {rows}×{cols} array", path.display(), data.len()),
+        ));
+    }
+    use npyz::WriterBuilder;
+    let mut out = std::io::BufWriter::new(std::fs::File::create(path)?);
+    let mut w = npyz::WriteOptions::new()
+        .default_dtype()
+        .shape(&[rows as u64, cols as u64])
+        .writer(&mut out)
+        .begin_nd()?;
+    w.extend(data.iter().copied())?;
+    w.finish()?;
+    std::io::Write::flush(&mut out)
+}
+
+/// Writes a row-major 2-D `float64` array as an `.npy`.
 pub fn write_npy_f64(path: &Path, rows: usize, cols: usize, data: &[f64]) -> std::io::Result<()> {
-    let mut out = npy_header("<f8", rows, cols);
-    for v in data {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-    std::fs::write(path, out)
+    write_npy(path, rows, cols, data)
 }
 
-/// Writes a row-major 2-D `float32` array as an `.npy` (version 1.0).
+/// Writes a row-major 2-D `float32` array as an `.npy`.
 pub fn write_npy_f32(path: &Path, rows: usize, cols: usize, data: &[f32]) -> std::io::Result<()> {
-    let mut out = npy_header("<f4", rows, cols);
-    for v in data {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-    std::fs::write(path, out)
-}
-
-fn npy_header(descr: &str, rows: usize, cols: usize) -> Vec<u8> {
-    let mut dict = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': ({rows}, {cols}), }}");
-    // Data starts on a 64-byte boundary; the header ends with '\n'.
-    let unpadded = 10 + dict.len() + 1;
-    dict.push_str(&" ".repeat((64 - unpadded % 64) % 64));
-    dict.push('\n');
-    let mut out = b"\x93NUMPY\x01\x00".to_vec();
-    out.extend_from_slice(&(dict.len() as u16).to_le_bytes());
-    out.extend_from_slice(dict.as_bytes());
-    out
-}
-
-/// The text after `'key':` in a Python dict literal, up to the end of the dict.
-fn dict_value<'a>(header: &'a str, key: &str) -> Option<&'a str> {
-    let needle_single = format!("'{key}'");
-    let needle_double = format!("\"{key}\"");
-    let at = header.find(&needle_single).or_else(|| header.find(&needle_double))?;
-    let rest = &header[at + key.len() + 2..];
-    let colon = rest.find(':')?;
-    Some(rest[colon + 1..].trim_start())
-}
-
-fn unquote(text: &str) -> Option<String> {
-    let q = text.chars().next()?;
-    if q != '\'' && q != '"' {
-        return None;
-    }
-    let end = text[1..].find(q)?;
-    Some(text[1..1 + end].to_string())
-}
-
-fn parse_shape(text: &str) -> Option<Vec<usize>> {
-    let text = text.strip_prefix('(')?;
-    let end = text.find(')')?;
-    text[..end]
-        .split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(|s| s.trim_end_matches('L').parse::<usize>().ok())
-        .collect()
+    write_npy(path, rows, cols, data)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A version 1.0 header by hand, for files npyz would not write (other dtypes, bad lengths).
+    fn npy_header(descr: &str, rows: usize, cols: usize) -> Vec<u8> {
+        let mut dict = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': ({rows}, {cols}), }}");
+        let unpadded = 10 + dict.len() + 1;
+        dict.push_str(&" ".repeat((64 - unpadded % 64) % 64));
+        dict.push('\n');
+        let mut out = b"\x93NUMPY\x01\x00".to_vec();
+        out.extend_from_slice(&(dict.len() as u16).to_le_bytes());
+        out.extend_from_slice(dict.as_bytes());
+        out
+    }
 
     #[test]
     fn round_trip_f64_and_f32() {

@@ -433,7 +433,7 @@ impl ModelFile {
             None => TcnBlock::default(),
         };
         let spec = ModelSpec::new(arch, seq_len, joints, tcn_block);
-        let support = DataSupport::from_props(|k| meta.get(k).copied(), joints).map_err(bad)?;
+        let support = DataSupport::from_props(|k| meta.get(k).copied(), joints).map_err(|e| bad(e.to_string()))?;
         let graph = proto.graph.as_ref().ok_or_else(|| bad("no graph".into()))?;
         let inits: HashMap<&str, &pb::TensorProto> = graph.initializer.iter().map(|t| (t.name.as_str(), t)).collect();
         let tensor = |name: &str, want: usize| -> Result<Vec<f32>, OnnxError> {

@@ -99,32 +99,20 @@ impl DataSupport {
     }
 
     /// Reads the props back: `None` when the file carries none of them (a model trained
-    /// elsewhere); an error naming the key when they are partial or malformed.
-    pub fn from_props<'a>(get: impl Fn(&str) -> Option<&'a str>, joints: usize) -> Result<Option<Self>, String> {
-        let keys = [KEY_CMD_MIN, KEY_CMD_MAX, KEY_CMD_STEP_MAX, KEY_GAP_MAX];
-        let present = keys.iter().filter(|k| get(k).is_some()).count();
-        if present == 0 {
-            return Ok(None);
-        }
-        let read = |k: &str| -> Result<Vec<f64>, String> {
-            let s =
-                get(k).ok_or_else(|| format!("metadata prop {k:?} is missing (the other support props are there)"))?;
-            let v: Vec<f64> = s
-                .split(',')
-                .map(|p| p.trim().parse::<f64>())
-                .collect::<Result<_, _>>()
-                .map_err(|_| format!("metadata prop {k:?} = {s:?} is not a list of numbers"))?;
-            if v.len() != joints || v.iter().any(|x| !x.is_finite()) {
-                return Err(format!("metadata prop {k:?} = {s:?}: need {joints} finite numbers"));
-            }
-            Ok(v)
-        };
-        Ok(Some(Self {
-            cmd_min_deg: read(KEY_CMD_MIN)?,
-            cmd_max_deg: read(KEY_CMD_MAX)?,
-            cmd_step_max_deg: read(KEY_CMD_STEP_MAX)?,
-            gap_max_deg: read(KEY_GAP_MAX)?,
-        }))
+    /// elsewhere); an error naming the key when they are partial or malformed. The one reader
+    /// of the contract ([`bowden_interfaces::model::Support`]), which the compensator uses too.
+    pub fn from_props<'a>(
+        get: impl Fn(&str) -> Option<&'a str>,
+        joints: usize,
+    ) -> Result<Option<Self>, bowden_interfaces::model::ContractError> {
+        Ok(
+            bowden_interfaces::model::Support::from_props(get, joints)?.map(|s| Self {
+                cmd_min_deg: s.cmd_min_deg[..joints].to_vec(),
+                cmd_max_deg: s.cmd_max_deg[..joints].to_vec(),
+                cmd_step_max_deg: s.cmd_step_max_deg[..joints].to_vec(),
+                gap_max_deg: s.gap_max_deg[..joints].to_vec(),
+            }),
+        )
     }
 }
 

@@ -25,25 +25,28 @@ use crate::windows::{overall_rmse, WindowSet};
 pub const SHARDS: usize = 2;
 
 /// Which implementation computes the gradients.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    Serialize,
+    Deserialize,
+    strum::EnumString,
+    strum::IntoStaticStr,
+    strum::Display,
+    strum::VariantNames,
+)]
 #[serde(rename_all = "kebab-case")]
+#[strum(serialize_all = "kebab-case")]
 pub enum Backend {
     /// Hand-written fused kernels (default).
     #[default]
     Fused,
     /// candle's autograd (reference; slow for the LSTM).
     Candle,
-}
-
-impl std::str::FromStr for Backend {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "fused" => Ok(Self::Fused),
-            "candle" => Ok(Self::Candle),
-            _ => Err(format!("backend {s:?} is not fused or candle")),
-        }
-    }
 }
 
 /// Everything that defines a training run.

@@ -12,25 +12,28 @@ use crate::arch::Direction;
 use crate::dataset::Dataset;
 
 /// Where the physical (measured) joint angles come from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    Serialize,
+    Deserialize,
+    strum::EnumString,
+    strum::IntoStaticStr,
+    strum::Display,
+    strum::VariantNames,
+)]
 #[serde(rename_all = "kebab-case")]
+#[strum(serialize_all = "kebab-case")]
 pub enum PhySource {
     /// The vision estimate (`q_phy_*`), as the paper.
     #[default]
     Vision,
     /// The simulator's truth (`q_true_*`), simulated data only.
     Truth,
-}
-
-impl std::str::FromStr for PhySource {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "vision" => Ok(Self::Vision),
-            "truth" => Ok(Self::Truth),
-            _ => Err(format!("physical-angle source {s:?} is not vision or truth")),
-        }
-    }
 }
 
 /// Per-joint affine normalisation: `(q − mean) / sd`.

@@ -9,27 +9,14 @@
 //! families (`bouc-wen` reads only `sheath.length_mm`, for the cables' compliance).
 
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use bowden_kinematics::{N_CABLES, N_JOINTS};
 
 /// Largest number of play operators per cable (the state is a fixed array: no allocation).
 pub const MAX_PLAYS: usize = 16;
 
-/// A plant configuration that could not be used, naming the file and the field.
-#[derive(Debug, thiserror::Error)]
-pub enum PlantConfigError {
-    #[error("{path}: cannot read: {cause}")]
-    Io { path: PathBuf, cause: std::io::Error },
-    #[error("{path}: malformed TOML: {message}")]
-    Parse { path: PathBuf, message: String },
-    #[error("{path}: field `{field}`: {problem}")]
-    Invalid {
-        path: PathBuf,
-        field: String,
-        problem: String,
-    },
-}
+pub use bowden_interfaces::config::ConfigError;
 
 /// The sheath every cable runs through between the drive unit and the manipulator base.
 #[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
@@ -306,17 +293,17 @@ pub struct PlantConfig {
 
 impl PlantConfig {
     /// Reads and validates a plant file.
-    pub fn load(path: impl AsRef<Path>) -> Result<Self, PlantConfigError> {
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|cause| PlantConfigError::Io {
-            path: path.to_path_buf(),
-            cause,
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+            origin: path.display().to_string(),
+            source,
         })?;
         Self::parse(&text, path)
     }
 
     /// `path` when given, else the shipped plant ([`Self::paper_default`]).
-    pub fn load_or_shipped(path: Option<&Path>) -> Result<Self, PlantConfigError> {
+    pub fn load_or_shipped(path: Option<&Path>) -> Result<Self, ConfigError> {
         path.map_or_else(|| Ok(Self::paper_default()), Self::load)
     }
 
@@ -330,9 +317,9 @@ impl PlantConfig {
     }
 
     /// Parses and validates TOML text; `path` is only used in error messages.
-    pub fn parse(text: &str, path: &Path) -> Result<Self, PlantConfigError> {
-        let cfg: PlantConfig = toml::from_str(text).map_err(|e| PlantConfigError::Parse {
-            path: path.to_path_buf(),
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        let cfg: PlantConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            origin: path.display().to_string(),
             message: e.to_string().replace('\n', " "),
         })?;
         cfg.validate(path)?;
@@ -340,9 +327,9 @@ impl PlantConfig {
     }
 
     /// Checks every field; the error names the first bad one.
-    pub fn validate(&self, path: &Path) -> Result<(), PlantConfigError> {
-        let bad = |field: String, problem: String| PlantConfigError::Invalid {
-            path: path.to_path_buf(),
+    pub fn validate(&self, path: &Path) -> Result<(), ConfigError> {
+        let bad = |field: String, problem: String| ConfigError::Invalid {
+            origin: path.display().to_string(),
             field,
             problem,
         };
@@ -475,9 +462,9 @@ impl PlantConfig {
     }
 
     /// The selected family's table is present and valid; the other families' are absent.
-    fn validate_family(&self, path: &Path) -> Result<(), PlantConfigError> {
-        let bad = |field: String, problem: String| PlantConfigError::Invalid {
-            path: path.to_path_buf(),
+    fn validate_family(&self, path: &Path) -> Result<(), ConfigError> {
+        let bad = |field: String, problem: String| ConfigError::Invalid {
+            origin: path.display().to_string(),
             field,
             problem,
         };

@@ -46,5 +46,5 @@ pub mod hysteresis;
 pub mod plant;
 
 pub use characterize::{characterize, Characterization, CharacterizeOptions, JointStats, PlotError};
-pub use config::{BoucWenConfig, FamilyKind, LugreConfig, PlantConfig, PlantConfigError};
+pub use config::{BoucWenConfig, ConfigError, FamilyKind, LugreConfig, PlantConfig};
 pub use plant::{Plant, PlantError};

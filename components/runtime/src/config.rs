@@ -30,20 +30,7 @@ pub const SIM_DEFAULT_TOML: &str = include_str!("../../../configs/sim.toml");
 /// Name under which [`SIM_DEFAULT_TOML`] is addressed on command lines (`--config @sim`).
 pub const SIM_DEFAULT_NAME: &str = "@sim";
 
-/// A configuration that could not be used.
-#[derive(Debug, thiserror::Error)]
-pub enum ConfigError {
-    #[error("{origin}: cannot read: {source}")]
-    Io { origin: String, source: std::io::Error },
-    #[error("{origin}: malformed TOML: {message}")]
-    Parse { origin: String, message: String },
-    #[error("{origin}: field `{field}`: {problem}")]
-    Invalid {
-        origin: String,
-        field: String,
-        problem: String,
-    },
-}
+pub use bowden_interfaces::config::ConfigError;
 
 /// Scheduling mode of a run.
 #[derive(

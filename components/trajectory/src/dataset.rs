@@ -107,6 +107,43 @@ pub struct Excitation {
     pub dither_deg: Vec<f64>,
 }
 
+/// The named excitations (`bowden collect --excitation`, a transfer recipe's `excitation`).
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    serde::Deserialize,
+    serde::Serialize,
+    strum::EnumString,
+    strum::IntoStaticStr,
+    strum::Display,
+    strum::VariantNames,
+)]
+#[serde(rename_all = "lowercase")]
+#[strum(serialize_all = "lowercase")]
+pub enum ExcitationKind {
+    /// eq. (16) exactly ([`Excitation::paper`]).
+    Paper,
+    /// eq. (16) with jumps and dither ([`Excitation::mixed`]).
+    Mixed,
+}
+
+impl ExcitationKind {
+    pub fn as_str(self) -> &'static str {
+        self.into()
+    }
+
+    /// The excitation this name stands for.
+    pub fn excitation(self) -> Excitation {
+        match self {
+            Self::Paper => Excitation::paper(),
+            Self::Mixed => Excitation::mixed(),
+        }
+    }
+}
+
 impl Excitation {
     /// The paper's eq. (16).
     pub fn paper() -> Self {

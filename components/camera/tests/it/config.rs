@@ -2,6 +2,7 @@
 //! the file and the field.
 
 use bowden_camera::{CameraConfig, CameraError};
+use bowden_interfaces::config::ConfigError;
 use std::path::Path;
 
 const SHIPPED: &str = include_str!("../../../../configs/camera.toml");
@@ -25,7 +26,7 @@ fn shipped_default_is_a_d435_at_640x480() {
 
 fn expect_field(text: &str, field: &str) {
     match parse(text) {
-        Err(e @ CameraError::Invalid { .. }) => {
+        Err(e @ CameraError::Config(ConfigError::Invalid { .. })) => {
             let msg = e.to_string();
             assert!(msg.contains("test/camera.toml") && msg.contains(field), "{msg}");
         }
@@ -74,7 +75,7 @@ fn bad_values_name_the_field() {
     let mut c = CameraConfig::paper_default();
     c.pose.look_at_base_mm = c.pose.position_base_mm;
     assert!(
-        matches!(c.validate(Path::new("x.toml")), Err(CameraError::Invalid { field, .. }) if field == "pose.look_at_base_mm")
+        matches!(c.validate(Path::new("x.toml")), Err(CameraError::Config(ConfigError::Invalid { field, .. })) if field == "pose.look_at_base_mm")
     );
 }
 
@@ -82,14 +83,22 @@ fn bad_values_name_the_field() {
 fn malformed_or_unknown_keys_and_missing_files_are_refused() {
     let unknown = SHIPPED.replacen("fx_px = 615.0", "fx_px = 615.0\nfocal = 3.0", 1);
     match parse(&unknown) {
-        Err(e @ CameraError::Parse { .. }) => assert!(e.to_string().contains("focal"), "{e}"),
+        Err(e @ CameraError::Config(ConfigError::Parse { .. })) => assert!(e.to_string().contains("focal"), "{e}"),
         other => panic!("{other:?}"),
     }
     let missing = SHIPPED.replacen("fy_px = 615.0", "", 1);
-    assert!(matches!(parse(&missing), Err(CameraError::Parse { .. })));
-    assert!(matches!(parse("[intrinsics"), Err(CameraError::Parse { .. })));
+    assert!(matches!(
+        parse(&missing),
+        Err(CameraError::Config(ConfigError::Parse { .. }))
+    ));
+    assert!(matches!(
+        parse("[intrinsics"),
+        Err(CameraError::Config(ConfigError::Parse { .. }))
+    ));
     match CameraConfig::load("/nonexistent/camera.toml") {
-        Err(e @ CameraError::Read { .. }) => assert!(e.to_string().contains("/nonexistent/camera.toml")),
+        Err(e @ CameraError::Config(ConfigError::Io { .. })) => {
+            assert!(e.to_string().contains("/nonexistent/camera.toml"))
+        }
         other => panic!("{other:?}"),
     }
 }
@@ -101,7 +110,7 @@ fn a_camera_from_an_invalid_in_memory_config_is_refused() {
     let mut c = CameraConfig::paper_default();
     c.intrinsics.width_px = 0;
     match SyntheticCamera::try_new(Robot::paper_default(), MarkerGeometry::paper_default(), c, 0) {
-        Err(CameraError::Invalid { field, .. }) => assert_eq!(field, "intrinsics.width_px"),
+        Err(CameraError::Config(ConfigError::Invalid { field, .. })) => assert_eq!(field, "intrinsics.width_px"),
         other => panic!("{:?}", other.map(|_| ())),
     }
 }

@@ -3,7 +3,7 @@
 use crate::common;
 
 use bowden_kinematics::Robot;
-use bowden_plant::{Plant, PlantConfig, PlantConfigError, PlantError};
+use bowden_plant::{ConfigError, Plant, PlantConfig, PlantError};
 use common::state_bytes;
 
 /// The shipped plant of every hysteresis family: the checks below hold for each.
@@ -124,7 +124,7 @@ fn commands_at_the_joint_limits_are_accepted() {
     }
 }
 
-fn parse(text: &str) -> Result<PlantConfig, PlantConfigError> {
+fn parse(text: &str) -> Result<PlantConfig, ConfigError> {
     PlantConfig::parse(text, std::path::Path::new("test/plant.toml"))
 }
 
@@ -174,7 +174,7 @@ fn config_errors_name_the_file_and_field() {
         let err = parse(&text.replacen(from, to, 1)).unwrap_err();
         let msg = err.to_string();
         assert!(msg.contains("test/plant.toml") && msg.contains(field), "{to}: {msg}");
-        assert!(matches!(err, PlantConfigError::Invalid { .. }));
+        assert!(matches!(err, ConfigError::Invalid { .. }));
     }
     let wrap = shipped().replacen("wrap_deg = [240.0, 240.0", "wrap_deg = [240.0, -1.0", 1);
     assert!(parse(&wrap).unwrap_err().to_string().contains("sheath.wrap_deg[1]"));
@@ -185,12 +185,12 @@ fn config_errors_name_the_file_and_field() {
     let unknown = shipped().replacen("[body]\n", "[body]\nfriction = 1.0\n", 1);
     let e = parse(&unknown).unwrap_err();
     assert!(
-        matches!(e, PlantConfigError::Parse { .. }) && e.to_string().contains("friction"),
+        matches!(e, ConfigError::Parse { .. }) && e.to_string().contains("friction"),
         "{e}"
     );
     let short = shipped().replacen("gain = [1.0, 1.0, 1.0, 1.0, 1.0]", "gain = [1.0, 1.0]", 1);
-    assert!(matches!(parse(&short), Err(PlantConfigError::Parse { .. })));
-    assert!(matches!(parse("name = "), Err(PlantConfigError::Parse { .. })));
+    assert!(matches!(parse(&short), Err(ConfigError::Parse { .. })));
+    assert!(matches!(parse("name = "), Err(ConfigError::Parse { .. })));
     let missing = PlantConfig::load("/nonexistent/plant.toml").unwrap_err();
-    assert!(matches!(missing, PlantConfigError::Io { .. }) && missing.to_string().contains("/nonexistent/plant.toml"));
+    assert!(matches!(missing, ConfigError::Io { .. }) && missing.to_string().contains("/nonexistent/plant.toml"));
 }

@@ -9,7 +9,7 @@
 use crate::common;
 
 use bowden_kinematics::{Robot, N_JOINTS};
-use bowden_plant::{FamilyKind, Plant, PlantConfig, PlantConfigError};
+use bowden_plant::{ConfigError, FamilyKind, Plant, PlantConfig};
 use common::{commands, lands_in_the_papers_range, mean_abs_error, quasi_static_run, sweep};
 
 fn file(name: &str) -> String {
@@ -323,13 +323,13 @@ fn every_family_reports_a_complete_state() {
     }
 }
 
-fn parse(text: &str) -> Result<PlantConfig, PlantConfigError> {
+fn parse(text: &str) -> Result<PlantConfig, ConfigError> {
     PlantConfig::parse(text, std::path::Path::new("test/plant.toml"))
 }
 
 fn invalid_field(text: &str) -> String {
     match parse(text) {
-        Err(PlantConfigError::Invalid { field, .. }) => field,
+        Err(ConfigError::Invalid { field, .. }) => field,
         other => panic!("expected an invalid field, got {other:?}"),
     }
 }
@@ -415,7 +415,7 @@ fn family_tables_are_validated_and_errors_name_the_field() {
 
     // The selected family's table is required …
     let no_table = bw.replacen("\n[bouc_wen]\n", "\n[unused_bouc_wen]\n", 1);
-    assert!(matches!(parse(&no_table), Err(PlantConfigError::Parse { .. })));
+    assert!(matches!(parse(&no_table), Err(ConfigError::Parse { .. })));
     let start = bw.find("\n[bouc_wen]\n").unwrap();
     let end = bw.find("\n[dynamics]\n").unwrap();
     let without = format!("{}{}", &bw[..start], &bw[end..]);
@@ -436,12 +436,12 @@ fn family_tables_are_validated_and_errors_name_the_field() {
     // Unknown families and fields are parse errors naming them.
     let e = parse(&lg.replacen("family = \"lugre\"", "family = \"dahl\"", 1)).unwrap_err();
     assert!(
-        matches!(e, PlantConfigError::Parse { .. }) && e.to_string().contains("dahl"),
+        matches!(e, ConfigError::Parse { .. }) && e.to_string().contains("dahl"),
         "{e}"
     );
     let e = parse(&lg.replacen("[lugre]\n", "[lugre]\nsigma3 = 1.0\n", 1)).unwrap_err();
     assert!(
-        matches!(e, PlantConfigError::Parse { .. }) && e.to_string().contains("sigma3"),
+        matches!(e, ConfigError::Parse { .. }) && e.to_string().contains("sigma3"),
         "{e}"
     );
 }

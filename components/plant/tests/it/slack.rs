@@ -7,7 +7,7 @@ use crate::common;
 
 use bowden_kinematics::{Robot, N_JOINTS};
 use bowden_plant::config::SlipConfig;
-use bowden_plant::{Plant, PlantConfig, PlantConfigError};
+use bowden_plant::{ConfigError, Plant, PlantConfig};
 use std::path::Path;
 
 fn config(file: &str) -> PlantConfig {
@@ -185,7 +185,7 @@ fn creep_grows_linearly_from_its_start_to_its_maximum() {
     }
 }
 
-fn parse(text: &str) -> Result<PlantConfig, PlantConfigError> {
+fn parse(text: &str) -> Result<PlantConfig, ConfigError> {
     PlantConfig::parse(text, Path::new("test/plant.toml"))
 }
 
@@ -218,7 +218,7 @@ fn bad_slack_fields_name_the_field() {
         let e = parse(&format!("{shipped}{extra}")).unwrap_err();
         let msg = e.to_string();
         assert!(
-            matches!(e, PlantConfigError::Invalid { .. }) && msg.contains(field) && msg.contains("test/plant.toml"),
+            matches!(e, ConfigError::Invalid { .. }) && msg.contains(field) && msg.contains("test/plant.toml"),
             "{extra}: {msg}"
         );
     }
@@ -235,13 +235,13 @@ fn bad_slack_fields_name_the_field() {
     let unknown = format!("{shipped}\n[[drift.slip]]\nat_s = 1.0\ncable = 3\nmm = 0.5\nwhen = 2\n");
     let e = parse(&unknown).unwrap_err();
     assert!(
-        matches!(e, PlantConfigError::Parse { .. }) && e.to_string().contains("when"),
+        matches!(e, ConfigError::Parse { .. }) && e.to_string().contains("when"),
         "{e}"
     );
     let missing = format!("{shipped}\n[[drift.slip]]\nat_s = 1.0\ncable = 3\n");
     let e = parse(&missing).unwrap_err();
     assert!(
-        matches!(e, PlantConfigError::Parse { .. }) && e.to_string().contains("mm"),
+        matches!(e, ConfigError::Parse { .. }) && e.to_string().contains("mm"),
         "{e}"
     );
 }
