@@ -3,7 +3,7 @@
 //! is swapped in; a fine-tune on corrupted rows is refused and nothing is published; the state
 //! survives a restart; the compensator's loader refuses a file whose hash or content is wrong.
 
-use bowden_adapt::{AdaptConfig, Adapter, Decision};
+use bowden_adapt::{AdaptConfig, Adapter, Decision, RowError};
 use bowden_compensator::swap::{prepare, LoaderSettings};
 use bowden_compensator::{EvaluatorChoice, LoadOptions};
 use bowden_interfaces::{fnv1a64, ModelUpdate};
@@ -133,8 +133,19 @@ fn bad_rows_are_refused_and_counted() {
     let (fwd, inv) = models();
     let dir = tempfile::tempdir().unwrap();
     let mut a = Adapter::open(config(), dir.path(), &fwd, &inv, false).unwrap();
-    assert!(a.push(0, &[0.0; 5], &[f64::NAN, 0.0, 0.0, 0.0, 0.0], None).is_err());
-    assert!(a.push(1, &[0.0; 4], &[0.0; 4], None).is_err());
+    assert_eq!(
+        a.push(0, &[0.0; 5], &[f64::NAN, 0.0, 0.0, 0.0, 0.0], None),
+        Err(RowError::NonFinite { tick: 0 })
+    );
+    assert!(matches!(
+        a.push(1, &[0.0; 4], &[0.0; 4], None),
+        Err(RowError::Joints {
+            tick: 1,
+            cmd: 4,
+            phy: 4,
+            models: 5
+        })
+    ));
     a.push(2, &[0.0; 5], &[0.0; 5], None).unwrap();
     // Standing still: skipped.
     a.push(3, &[0.1; 5], &[0.0; 5], None).unwrap();

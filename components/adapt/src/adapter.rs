@@ -23,6 +23,20 @@ pub enum AdaptError {
     Table(#[from] TableError),
 }
 
+/// A row [`Adapter::push`] refused (counted in `rejected_rows`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum RowError {
+    #[error("tick {tick}: a row of {cmd} / {phy} joints, the models have {models}")]
+    Joints {
+        tick: u64,
+        cmd: usize,
+        phy: usize,
+        models: usize,
+    },
+    #[error("tick {tick}: a non-finite angle in the row")]
+    NonFinite { tick: u64 },
+}
+
 /// How errors name the settings an adapter was opened with (they may not come from a file).
 const SETTINGS: &str = "the [adapt] settings";
 
@@ -308,19 +322,20 @@ impl Adapter {
         q_cmd_deg: &[f64],
         q_phy_deg: &[f64],
         q_pred_deg: Option<&[f64]>,
-    ) -> Result<(), String> {
+    ) -> Result<(), RowError> {
         let j = self.joints();
         if q_cmd_deg.len() != j || q_phy_deg.len() != j {
             self.rejected_rows += 1;
-            return Err(format!(
-                "tick {tick}: a row of {} / {} joints, the models have {j}",
-                q_cmd_deg.len(),
-                q_phy_deg.len()
-            ));
+            return Err(RowError::Joints {
+                tick,
+                cmd: q_cmd_deg.len(),
+                phy: q_phy_deg.len(),
+                models: j,
+            });
         }
         if !q_cmd_deg.iter().chain(q_phy_deg).all(|v| v.is_finite()) {
             self.rejected_rows += 1;
-            return Err(format!("tick {tick}: a non-finite angle in the row"));
+            return Err(RowError::NonFinite { tick });
         }
         if let Some(last) = self.rows.back() {
             let moved = last

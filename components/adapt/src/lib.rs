@@ -31,5 +31,5 @@
 mod adapter;
 mod config;
 
-pub use adapter::{AdaptError, Adapter, CheckRecord, Decision, Job, JobResult, Row, SwapRecord};
+pub use adapter::{AdaptError, Adapter, CheckRecord, Decision, Job, JobResult, Row, RowError, SwapRecord};
 pub use config::AdaptConfig;

@@ -502,6 +502,9 @@ impl PipelineConfig {
         Self::validate(file, origin, base_dir, ov.clone())
     }
 
+    /// Long by design (over 120 lines): one check per field, in the file's order, so every
+    /// rule of the schema is in one place beside its struct; each check is a few lines and
+    /// shares nothing with the next, so helpers would only scatter the schema.
     fn validate(
         file: PipelineFile,
         origin: ConfigOrigin,
@@ -895,7 +898,7 @@ impl PipelineConfig {
 
 /// The services a bridge's `params.export` (iceoryx2 → network) and `params.import`
 /// (network → iceoryx2) name (validated: known, not both ways, not the launcher's own).
-pub fn bridge_services(params: &toml::Table) -> Result<(Vec<String>, Vec<String>), String> {
+pub(crate) fn bridge_services(params: &toml::Table) -> Result<(Vec<String>, Vec<String>), String> {
     let list = |key: &str| -> Result<Vec<String>, String> {
         let Some(v) = params.get(key) else {
             return Ok(Vec::new());
@@ -936,7 +939,7 @@ pub fn bridge_services(params: &toml::Table) -> Result<(Vec<String>, Vec<String>
 }
 
 /// The services a recorder's `params.services` names (validated).
-pub fn recorder_services(params: &toml::Table) -> Result<Vec<String>, String> {
+pub(crate) fn recorder_services(params: &toml::Table) -> Result<Vec<String>, String> {
     let Some(v) = params.get("services") else {
         return Err("a recorder needs `services = [...]`".into());
     };

@@ -167,18 +167,29 @@ impl Excitation {
         self.step_multipliers.iter().all(|&m| m == 1.0) && self.dither_deg.iter().all(|&d| d == 0.0)
     }
 
-    fn validate(&self) -> Result<(), String> {
+    fn validate(&self) -> Result<(), ExcitationError> {
         if self.step_multipliers.is_empty() || self.dither_deg.is_empty() {
-            return Err("excitation: step multipliers and dither amplitudes must not be empty".into());
+            return Err(ExcitationError::Empty);
         }
-        if let Some(m) = self.step_multipliers.iter().find(|m| !(m.is_finite() && **m > 0.0)) {
-            return Err(format!("excitation: step multiplier {m} must be finite and > 0"));
+        if let Some(&m) = self.step_multipliers.iter().find(|m| !(m.is_finite() && **m > 0.0)) {
+            return Err(ExcitationError::StepMultiplier(m));
         }
-        if let Some(d) = self.dither_deg.iter().find(|d| !(d.is_finite() && **d >= 0.0)) {
-            return Err(format!("excitation: dither amplitude {d}° must be finite and ≥ 0"));
+        if let Some(&d) = self.dither_deg.iter().find(|d| !(d.is_finite() && **d >= 0.0)) {
+            return Err(ExcitationError::Dither(d));
         }
         Ok(())
     }
+}
+
+/// An [`Excitation`] that cannot make commands.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum ExcitationError {
+    #[error("excitation: step multipliers and dither amplitudes must not be empty")]
+    Empty,
+    #[error("excitation: step multiplier {0} must be finite and > 0")]
+    StepMultiplier(f64),
+    #[error("excitation: dither amplitude {0}° must be finite and ≥ 0")]
+    Dither(f64),
 }
 
 /// Commands for `n_configs` random configurations (seeded ChaCha8) under an [`Excitation`].
@@ -189,7 +200,7 @@ pub fn excitation_commands(
     n_configs: usize,
     seed: u64,
     excitation: &Excitation,
-) -> Result<Vec<JointsDeg>, String> {
+) -> Result<Vec<JointsDeg>, ExcitationError> {
     excitation.validate()?;
     if excitation.is_paper() {
         return Ok(dataset_commands(robot, n_configs, seed));
@@ -387,6 +398,7 @@ mod tests {
         };
         assert!(excitation_commands(&robot, 10, 1, &bad)
             .unwrap_err()
+            .to_string()
             .contains("multiplier"));
     }
 }

@@ -10,6 +10,6 @@ pub mod dataset;
 pub mod task_space;
 
 pub use dataset::{
-    dataset_commands, excitation_commands, interpolate_eq16, random_configurations, Excitation, ExcitationKind,
-    DATASET_STEP_DEG, PAPER_DATASET_COMMANDS, PAPER_DATASET_CONFIGS,
+    dataset_commands, excitation_commands, interpolate_eq16, random_configurations, Excitation, ExcitationError,
+    ExcitationKind, DATASET_STEP_DEG, PAPER_DATASET_COMMANDS, PAPER_DATASET_CONFIGS,
 };
