@@ -3,7 +3,11 @@
 
 mod cmd;
 mod home;
-mod nodes;
+
+/// Every process of the `bowden` binary counts its allocations per thread; node processes also
+/// serve small allocations (iceoryx2's per-sample `Rc`) from a pre-faulted pool.
+#[global_allocator]
+static ALLOC: bowden_runtime::alloc::RtAlloc = bowden_runtime::alloc::RtAlloc;
 
 use clap::{Parser, Subcommand};
 

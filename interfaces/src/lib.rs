@@ -122,6 +122,18 @@ pub struct JointTarget {
 impl JointTarget {
     /// Flag bit: this is the trajectory's last target.
     pub const FLAG_LAST: u32 = 1;
+
+    /// The target `q_desired_deg` (at most [`MAX_JOINTS`] joints; extra ones are ignored),
+    /// header left for the publisher to stamp.
+    pub fn from_deg(q_desired_deg: &[f64]) -> Self {
+        let n = q_desired_deg.len().min(MAX_JOINTS);
+        let mut t = Self {
+            n_joints: n as u32,
+            ..Default::default()
+        };
+        t.q_desired_deg[..n].copy_from_slice(&q_desired_deg[..n]);
+        t
+    }
 }
 
 /// Joint command q_cmd(t) the compensator sends: compensator → actuator.
@@ -409,6 +421,16 @@ pub fn fnv1a64(bytes: &[u8]) -> u64 {
 /// Checks that every used entry of an angle array is finite.
 pub fn all_finite(v: &[f64]) -> bool {
     v.iter().all(|x| x.is_finite())
+}
+
+/// The first `N` entries of a sample's joint array, if the sample says it has exactly `N`
+/// joints (`n`) and they are all finite; `None` otherwise (a malformed sample).
+pub fn finite_joints<const N: usize>(v: &[f64], n: u32) -> Option<[f64; N]> {
+    if n as usize != N || v.len() < N {
+        return None;
+    }
+    let q: [f64; N] = core::array::from_fn(|j| v[j]);
+    all_finite(&q).then_some(q)
 }
 
 // Layout contract: a change here is a breaking change for every non-Rust client.

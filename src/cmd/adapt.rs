@@ -1,7 +1,7 @@
 //! `bowden adapt status` (what an adapt node did: generations, swaps with their held-out
 //! errors, the last checks) and `bowden bench swap` (the compensator's cycle with hot model
 //! swaps against its normal cycle). The adapt node itself runs in a pipeline
-//! (`kind = "adapt"`, src/nodes/adapt.rs).
+//! (`kind = "adapt"`, components/adapt/src/node.rs).
 
 use anyhow::{bail, Context, Result};
 use bowden_adapt::{CheckRecord, SwapRecord};

@@ -38,6 +38,6 @@ pub fn run(c: Command) -> anyhow::Result<()> {
         #[cfg(feature = "bridge")]
         Command::Bridge(c) => super::bridge::bench(c),
         #[cfg(not(feature = "bridge"))]
-        Command::Bridge { .. } => anyhow::bail!("bench bridge: {}", crate::nodes::NO_BRIDGE),
+        Command::Bridge { .. } => anyhow::bail!("bench bridge: {}", bowden::registry::NO_BRIDGE),
     }
 }

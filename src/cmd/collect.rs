@@ -5,12 +5,12 @@
 
 use anyhow::{bail, Context, Result};
 use bowden_evaluation::{camera_fps_for, pipeline_variant};
-use bowden_interfaces::JointEstimate;
+use bowden_interfaces::{services, JointCommand, JointEstimate, JointTarget, PlantState};
 use bowden_kinematics::{Robot, N_JOINTS};
 use bowden_learning::dataset::{fnv1a64_hex, Dataset};
 use bowden_runtime::config::{Mode, Overrides, PipelineConfig};
 use bowden_runtime::launch::LaunchOptions;
-use bowden_runtime::session::{LockstepSession, SessionOptions, Taps};
+use bowden_runtime::session::{LockstepSession, SessionOptions};
 use bowden_trajectory::ExcitationKind;
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -116,7 +116,7 @@ fn collect(mut a: CollectArgs) -> Result<()> {
     let commands = bowden_trajectory::excitation_commands(&robot, a.samples, a.seed, &excitation)
         .map_err(|e| anyhow::anyhow!("--excitation {}: {e}", a.excitation))?;
     let work = a.out.join("pipeline");
-    let tick_ns = PipelineConfig::load(&a.config, &Overrides::default())?.period_ns();
+    let tick_ns = PipelineConfig::load(&a.config, &Overrides::default(), bowden::registry::REGISTRY)?.period_ns();
     let compensator_mode = match &a.controller_config {
         Some(c) => bowden_compensator::ControllerConfig::load(c)
             .with_context(|| format!("--controller-config {}", c.display()))?
@@ -147,17 +147,16 @@ fn collect(mut a: CollectArgs) -> Result<()> {
         seed: Some(a.seed),
         ..Default::default()
     };
-    let cfg = PipelineConfig::load(&pipeline, &ov)?;
+    let cfg = PipelineConfig::load(&pipeline, &ov, bowden::registry::REGISTRY)?;
     let mut opts = SessionOptions::new(LaunchOptions {
         quiet_children: true,
         ..LaunchOptions::current_exe().context("locating the bowden executable")?
     });
-    opts.taps = Taps {
-        plant_state: true,
-        joint_estimate: true,
-        joint_command: a.controller_config.is_some(),
-        ..Default::default()
-    };
+    opts.taps = vec![services::PLANT_STATE.into(), services::JOINT_ESTIMATE.into()];
+    if a.controller_config.is_some() {
+        opts.taps.push(services::JOINT_COMMAND.into());
+    }
+    opts.source = Some(services::JOINT_TARGET.into());
     let mut session = LockstepSession::start(&cfg, opts)?;
     let bar = ProgressBar::new(commands.len() as u64);
     bar.set_style(
@@ -176,20 +175,24 @@ fn collect(mut a: CollectArgs) -> Result<()> {
     };
     let run = (|| -> Result<()> {
         // One warm-up tick at home puts the one-frame-per-command grid on each command's last tick.
-        session.step_with_target(&[0.0; N_JOINTS]).context("warm-up tick")?;
+        session
+            .step_with(JointTarget::from_deg(&[0.0; N_JOINTS]))
+            .context("warm-up tick")?;
         for (i, q) in commands.iter().enumerate() {
             let mut state = None;
             let mut estimate = None;
             let mut sent = None;
             let mut t_ns = 0;
             for _ in 0..a.settle_ticks {
-                let out = session.step_with_target(q).with_context(|| format!("command {i}"))?;
+                let out = session
+                    .step_with(JointTarget::from_deg(q))
+                    .with_context(|| format!("command {i}"))?;
                 if let Some(e) = out.events.first() {
                     bail!("command {i}: a node failed at tick {}: {e}", out.tick);
                 }
-                state = out.plant_state.or(state);
-                sent = out.joint_command.or(sent);
-                estimate = out.joint_estimate;
+                state = out.get::<PlantState>(services::PLANT_STATE).or(state);
+                sent = out.get::<JointCommand>(services::JOINT_COMMAND).or(sent);
+                estimate = out.get::<JointEstimate>(services::JOINT_ESTIMATE);
                 t_ns = out.t_sim_ns;
             }
             let Some(state) = state else {

@@ -368,7 +368,8 @@ fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: 
         paths.push(t);
     }
     let work_dir = report.join("pipelines");
-    let base_tick_ns = PipelineConfig::load(&a.config.path, &Overrides::default())?.period_ns();
+    let base_tick_ns =
+        PipelineConfig::load(&a.config.path, &Overrides::default(), bowden::registry::REGISTRY)?.period_ns();
     let (tick_ns, tick_scale) = match a.tick_ms {
         None => (base_tick_ns, 1),
         Some(ms) => shorter_tick(ms, base_tick_ns)?,
@@ -459,6 +460,7 @@ fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: 
             quiet_children: true,
             ..LaunchOptions::current_exe().context("locating the bowden executable")?
         },
+        kinds: bowden::registry::REGISTRY,
     };
     Ok(Prepared {
         robot,

@@ -188,7 +188,7 @@ fn load(arg: &str, ov: &Overrides) -> anyhow::Result<PipelineConfig> {
     } else {
         crate::home::path(Path::new(arg))?.display().to_string()
     };
-    PipelineConfig::load_arg(&arg, ov).context("pipeline config")
+    PipelineConfig::load_arg(&arg, ov, bowden::registry::REGISTRY).context("pipeline config")
 }
 
 pub fn run(c: Command) -> anyhow::Result<()> {
@@ -204,7 +204,7 @@ pub fn run(c: Command) -> anyhow::Result<()> {
             run_process(
                 &cfg,
                 &name,
-                &crate::nodes::factory,
+                bowden::registry::REGISTRY,
                 &ProcessOptions { standalone, quiet },
             )
             .with_context(|| format!("node `{name}`"))?;

@@ -7,10 +7,12 @@
 //!    it does not (`bowden evaluate --session --adapt`).
 
 use crate::runtime_support;
+use bowden::registry::REGISTRY;
+use bowden_interfaces::{services, JointCommand, MotorCommand};
 
 use bowden_runtime::config::{Overrides, PipelineConfig};
 use bowden_runtime::launch::LaunchOptions;
-use bowden_runtime::session::{LockstepSession, SessionOptions, Taps};
+use bowden_runtime::session::{LockstepSession, SessionOptions};
 use runtime_support::*;
 use std::path::Path;
 use std::time::Duration;
@@ -140,18 +142,14 @@ fn a_killed_adapt_node_does_not_disturb_the_control_chain() {
         "chain.toml",
         &chain_with_adapt(&p, &dir.path().join("state"), 0, None),
     );
-    let cfg = PipelineConfig::load(&path, &Overrides::default()).unwrap();
+    let cfg = PipelineConfig::load(&path, &Overrides::default(), REGISTRY).unwrap();
     let mut opts = SessionOptions::new(LaunchOptions::with_exe(bowden_exe()));
     opts.launch.quiet_children = true;
-    opts.taps = Taps {
-        joint_command: true,
-        motor_command: true,
-        ..Default::default()
-    };
+    opts.taps = vec![services::JOINT_COMMAND.into(), services::MOTOR_COMMAND.into()];
     opts.stall_timeout = Duration::from_secs(20);
     let mut s = LockstepSession::start(&cfg, opts).unwrap();
     for _ in 0..200 {
-        assert!(s.step().unwrap().joint_command.is_some());
+        assert!(s.step().unwrap().get::<JointCommand>(services::JOINT_COMMAND).is_some());
     }
     let pid = s.pids().iter().find(|(n, _)| n == "adapt").map(|(_, p)| *p).unwrap();
     // SAFETY: SIGKILL to a child process this test's session started.
@@ -159,9 +157,14 @@ fn a_killed_adapt_node_does_not_disturb_the_control_chain() {
     let mut events = Vec::new();
     for k in 200..600 {
         let out = s.step().unwrap();
-        events.extend(out.events);
-        assert!(out.joint_command.is_some(), "tick {k}: the compensator went on");
-        let m = out.motor_command.expect("a motor command every tick");
+        events.extend(out.events.iter().cloned());
+        assert!(
+            out.get::<JointCommand>(services::JOINT_COMMAND).is_some(),
+            "tick {k}: the compensator went on"
+        );
+        let m = out
+            .get::<MotorCommand>(services::MOTOR_COMMAND)
+            .expect("a motor command every tick");
         assert_eq!(
             m.flags & bowden_interfaces::MotorCommand::FLAG_HOLD,
             0,

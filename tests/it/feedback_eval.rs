@@ -24,12 +24,14 @@
 //! `FB_TRAJ_DIR` (default configs/trajectories; configs/trajectories/tuning to choose settings),
 //! `FB_TRAJECTORIES` (random,circle,zigzag), `FB_REPEATS` (1), `FB_MAX_POINTS`, `FB_PLANT`.
 
+use bowden::registry::REGISTRY;
 use bowden_evaluation::report::{markdown, summarise, write_report};
 use bowden_evaluation::{pipeline_variant, run_trajectory, EvalSettings, PointRecord, RunRecord, RunSpec};
+use bowden_interfaces::{services, JointCommand, JointEstimate, JointTarget, PlantState};
 use bowden_kinematics::{JointsDeg, Robot, N_JOINTS};
 use bowden_runtime::config::{Overrides, PipelineConfig};
 use bowden_runtime::launch::LaunchOptions;
-use bowden_runtime::session::{LockstepSession, SessionOptions, Taps};
+use bowden_runtime::session::{LockstepSession, SessionOptions};
 use bowden_trajectory::task_space::TrajectorySpec;
 use std::path::{Path, PathBuf};
 
@@ -223,6 +225,7 @@ fn paper_pace_camera_30fps() {
         work_dir: dir.path().to_path_buf(),
         prefix_stem: format!("fbe{}_", std::process::id()),
         launch: launch(),
+        kinds: REGISTRY,
     };
     let mut runs = Vec::new();
     for (label, cfg, mode) in variants(&s) {
@@ -315,28 +318,31 @@ fn run_fine(
         seed: Some(seed),
         ..Default::default()
     };
-    let cfg = PipelineConfig::load(pipeline_file, &ov).unwrap();
+    let cfg = PipelineConfig::load(pipeline_file, &ov, REGISTRY).unwrap();
     let mut opts = SessionOptions::new(launch());
-    opts.taps = Taps {
-        joint_command: true,
-        plant_state: true,
-        joint_estimate: true,
-        ..Default::default()
-    };
+    opts.taps = vec![
+        services::JOINT_COMMAND.into(),
+        services::PLANT_STATE.into(),
+        services::JOINT_ESTIMATE.into(),
+    ];
+    opts.source = Some(services::JOINT_TARGET.into());
     let mut sess = LockstepSession::start(&cfg, opts).unwrap();
     for q in lead {
-        let out = sess.step_with_target(q).unwrap();
+        let out = sess.step_with(JointTarget::from_deg(q)).unwrap();
         assert!(out.events.is_empty(), "{:?}", out.events);
     }
     let take = |a: &[f64; 8]| -> JointsDeg { core::array::from_fn(|j| a[j]) };
     let (mut points, mut invalid) = (Vec::with_capacity(path.len()), 0);
     let mut last_cmd = None;
     for q in path {
-        let out = sess.step_with_target(q).unwrap();
+        let out = sess.step_with(JointTarget::from_deg(q)).unwrap();
         assert!(out.events.is_empty(), "{:?}", out.events);
-        last_cmd = out.joint_command.or(last_cmd);
-        let (cmd, state) = (last_cmd.expect("a command"), out.plant_state.expect("a plant state"));
-        let (q_est, ee_est) = match out.joint_estimate {
+        last_cmd = out.get::<JointCommand>(services::JOINT_COMMAND).or(last_cmd);
+        let (cmd, state) = (
+            last_cmd.expect("a command"),
+            out.get::<PlantState>(services::PLANT_STATE).expect("a plant state"),
+        );
+        let (q_est, ee_est) = match out.get::<JointEstimate>(services::JOINT_ESTIMATE) {
             Some(e) if e.quality == bowden_interfaces::JointEstimate::QUALITY_VALID => {
                 (Some(take(&e.q_phy_deg)), Some((e.ee_pos_base_mm, e.ee_quat_base_wxyz)))
             }

@@ -11,12 +11,13 @@
 //!   counts the rejected estimates and the fallback.
 
 use crate::runtime_support;
+use bowden::registry::REGISTRY;
 
-use bowden_interfaces::JointCommand;
+use bowden_interfaces::{services, JointCommand, JointTarget, PlantState};
 use bowden_kinematics::{JointsDeg, Robot};
 use bowden_runtime::config::{Overrides, PipelineConfig};
 use bowden_runtime::launch::LaunchOptions;
-use bowden_runtime::session::{LockstepSession, SessionOptions, Taps};
+use bowden_runtime::session::{LockstepSession, SessionOptions};
 use runtime_support::*;
 use std::path::{Path, PathBuf};
 
@@ -110,26 +111,29 @@ fn run(pipeline_file: &Path, tag: &str) -> Run {
         seed: Some(1000),
         ..Default::default()
     };
-    let cfg = PipelineConfig::load(pipeline_file, &ov).unwrap();
+    let cfg = PipelineConfig::load(pipeline_file, &ov, REGISTRY).unwrap();
     let mut opts = SessionOptions::new(LaunchOptions {
         quiet_children: true,
         ..LaunchOptions::with_exe(bowden_exe())
     });
-    opts.taps = Taps {
-        joint_command: true,
-        plant_state: true,
-        ..Default::default()
-    };
+    opts.taps = vec![services::JOINT_COMMAND.into(), services::PLANT_STATE.into()];
+    opts.source = Some(services::JOINT_TARGET.into());
     let mut s = LockstepSession::start(&cfg, opts).unwrap();
     let pts = points();
     let (mut commands, mut end_errors, mut max_error) = (Vec::new(), Vec::new(), 0.0f64);
-    s.step_with_target(&[0.0; 5]).unwrap();
+    s.step_with(JointTarget::from_deg(&[0.0; 5])).unwrap();
     for (i, q) in pts.iter().enumerate() {
         for t in 0..50 {
-            let out = s.step_with_target(q).unwrap();
+            let out = s.step_with(JointTarget::from_deg(q)).unwrap();
             assert!(out.events.is_empty(), "{:?}", out.events);
-            commands.push(out.joint_command.expect("a command every tick"));
-            let truth = out.plant_state.expect("a plant state every tick").q_phy_deg;
+            commands.push(
+                out.get::<JointCommand>(services::JOINT_COMMAND)
+                    .expect("a command every tick"),
+            );
+            let truth = out
+                .get::<PlantState>(services::PLANT_STATE)
+                .expect("a plant state every tick")
+                .q_phy_deg;
             let err = (0..5).map(|k| (q[k] - truth[k]).abs()).fold(0.0f64, f64::max);
             if i > 0 {
                 max_error = max_error.max(err);

@@ -23,6 +23,7 @@ mod feedback_lockstep;
 mod hygiene;
 mod learning_cli;
 mod learning_compensator;
+mod pipeline_config;
 mod plant_cli;
 mod python_client;
 mod runtime_alloc;

@@ -82,7 +82,7 @@ fn in_process_cycle_makes_no_system_allocation() {
             let wake = reactor.wait(Some(t0 + 100_000_000)).unwrap();
             assert_ne!(wake.ready_mask, 0);
             target_wait.drain();
-            let target = target_in.take(false, k).expect("target");
+            let target = target_in.latest().expect("target");
             comp.step(&target.q_desired_deg[..5], &mut step_out).unwrap();
             let mut c = JointCommand::default();
             step_out.fill_joint_command(&mut c);
@@ -92,7 +92,7 @@ fn in_process_cycle_makes_no_system_allocation() {
             while let Some(s) = safety_in.recv() {
                 act.safety(&s, t0);
             }
-            let c = cmd_in.take(true, k).expect("command");
+            let c = cmd_in.take_tick(k).expect("command");
             let r = act.command(&c.q_cmd_deg, c.n_joints, k * 1_000_000);
             motor_out
                 .publish(k, c.header.t_origin_ns, r.output.to_motor_command())

@@ -3,25 +3,22 @@
 //! whole leaves stale shared memory that the next run removes; the e-stop latches.
 
 use crate::runtime_support;
+use bowden::registry::REGISTRY;
 
-use bowden_interfaces::{services, MotorCommand, SafetyCommand};
+use bowden_interfaces::{services, JointCommand, MotorCommand, SafetyCommand};
 use bowden_runtime::config::{Overrides, PipelineConfig};
 use bowden_runtime::launch::LaunchOptions;
-use bowden_runtime::session::{LockstepSession, RealtimeSession, SessionOptions, Taps};
+use bowden_runtime::session::{LockstepSession, RealtimeSession, SessionOptions};
 use bowden_runtime::stage::state;
 use runtime_support::*;
 use std::time::Duration;
 
 fn session(cfg_text: &str, dir: &std::path::Path) -> LockstepSession {
     let path = write_config(dir, "chain.toml", cfg_text);
-    let cfg = PipelineConfig::load(&path, &Overrides::default()).unwrap();
+    let cfg = PipelineConfig::load(&path, &Overrides::default(), REGISTRY).unwrap();
     let mut opts = SessionOptions::new(LaunchOptions::with_exe(bowden_exe()));
     opts.launch.quiet_children = true;
-    opts.taps = Taps {
-        motor_command: true,
-        joint_command: true,
-        ..Default::default()
-    };
+    opts.taps = vec![services::MOTOR_COMMAND.into(), services::JOINT_COMMAND.into()];
     opts.stall_timeout = Duration::from_secs(20);
     LockstepSession::start(&cfg, opts).unwrap()
 }
@@ -46,7 +43,9 @@ fn killed_compensator_is_detected_and_actuator_holds() {
     let mut last_cmd = None;
     for _ in 0..300 {
         let out = s.step().unwrap();
-        let m = out.motor_command.expect("a motor command every tick");
+        let m = out
+            .get::<MotorCommand>(services::MOTOR_COMMAND)
+            .expect("a motor command every tick");
         assert_eq!(m.flags & MotorCommand::FLAG_HOLD, 0);
         last_cmd = Some(m);
     }
@@ -55,9 +54,12 @@ fn killed_compensator_is_detected_and_actuator_holds() {
     let mut hold_from = None;
     for k in 300..400u64 {
         let out = s.step().unwrap();
-        events.extend(out.events);
-        assert!(out.joint_command.is_none(), "tick {k}: no compensator, no command");
-        if let Some(m) = out.motor_command {
+        events.extend(out.events.iter().cloned());
+        assert!(
+            out.get::<JointCommand>(services::JOINT_COMMAND).is_none(),
+            "tick {k}: no compensator, no command"
+        );
+        if let Some(m) = out.get::<MotorCommand>(services::MOTOR_COMMAND) {
             assert_ne!(m.flags & MotorCommand::FLAG_HOLD, 0, "tick {k}: only hold commands");
             assert_eq!(m.q_cmd_deg, last_cmd.unwrap().q_cmd_deg, "holds the last safe command");
             assert_eq!(m.cable_disp_mm, last_cmd.unwrap().cable_disp_mm);
@@ -94,8 +96,8 @@ fn killed_compensator_is_restarted_and_commands_resume() {
     let mut resumed = 0;
     for _ in 0..100 {
         let out = s.step().unwrap();
-        events.extend(out.events);
-        if out.joint_command.is_some() {
+        events.extend(out.events.iter().cloned());
+        if out.get::<JointCommand>(services::JOINT_COMMAND).is_some() {
             resumed += 1;
         }
     }
@@ -131,7 +133,7 @@ fn step_while(s: &mut LockstepSession, p: &str, release: bool) -> MotorCommand {
         .spawn()
         .unwrap();
     for _ in 0..5000 {
-        let m = s.step().unwrap().motor_command.unwrap();
+        let m = s.step().unwrap().get::<MotorCommand>(services::MOTOR_COMMAND).unwrap();
         if let Some(status) = child.try_wait().unwrap() {
             let out = child.wait_with_output().unwrap();
             assert!(status.success(), "{}", String::from_utf8_lossy(&out.stdout));
@@ -154,12 +156,12 @@ fn estop_latches_the_actuator() {
     let m = step_while(&mut s, &p, false);
     assert_ne!(m.flags & MotorCommand::FLAG_ESTOP, 0);
     for _ in 0..50 {
-        let k = s.step().unwrap().motor_command.unwrap();
+        let k = s.step().unwrap().get::<MotorCommand>(services::MOTOR_COMMAND).unwrap();
         assert_ne!(k.flags & MotorCommand::FLAG_ESTOP, 0, "latched");
         assert_eq!(k.q_cmd_deg, m.q_cmd_deg, "holds while latched");
     }
     step_while(&mut s, &p, true);
-    let after = s.step().unwrap().motor_command.unwrap();
+    let after = s.step().unwrap().get::<MotorCommand>(services::MOTOR_COMMAND).unwrap();
     assert_eq!(after.flags & (MotorCommand::FLAG_ESTOP | MotorCommand::FLAG_HOLD), 0);
     let _ = (SafetyCommand::ESTOP, services::SAFETY);
     s.shutdown().unwrap();
@@ -173,7 +175,7 @@ fn realtime_kill_is_detected_and_watchdog_holds() {
         prefix: Some(p.clone()),
         ..Default::default()
     };
-    let mut cfg = PipelineConfig::load(&sim_toml(), &ov).unwrap();
+    let mut cfg = PipelineConfig::load(&sim_toml(), &ov, REGISTRY).unwrap();
     // The control chain only; no restart, so the hold lasts.
     cfg.stages
         .retain(|s| ["trajectory", "compensator", "actuator", "plant"].contains(&s.name.as_str()));

@@ -102,8 +102,9 @@ class EventQos:
 
 EVENT_QOS = EventQos()
 
-#: Built-in stage kinds and the services they read (waited for in lockstep) and write, as
-#: ``bowden_runtime::config::KINDS``.
+#: Built-in stage kinds and the services they read (``Read::Tick``: waited for in lockstep) and
+#: write, as each kind's ``pub const KIND: NodeKind`` beside its crate declares them
+#: (``components/<crate>/src/node.rs``, the registry in ``src/registry.rs``).
 KIND_INPUTS = {
     "trajectory": (),
     "compensator": (JOINT_TARGET,),

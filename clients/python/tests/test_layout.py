@@ -165,18 +165,28 @@ class ServicesTest(unittest.TestCase):
         out = re.search(r"pub fn output<.*?create\(\)", ports, re.S).group(0)
         self.assertEqual(int(re.search(r"max_loaned_samples\((\d+)\)", out).group(1)), services.PUBLISHER_MAX_LOANED)
 
-    def test_kinds_match_config_rs(self):
-        cfg = read("components/runtime/src/config.rs")
+    def test_kinds_match_the_node_declarations(self):
+        import glob
+
         consts = dict(re.findall(r'pub const (\w+): &str = "([^"]+)";', read("interfaces/src/services.rs")))
-        kinds = re.findall(
-            r'kind: "(\w+)",\s*(?://[^\n]*\n\s*)*inputs: &\[([^\]]*)\],.*?outputs: &\[([^\]]*)\]', cfg, re.S
-        )
-        self.assertEqual(sorted(k for k, _, _ in kinds), sorted(services.KIND_INPUTS), "KINDS in config.rs")
+        files = sorted(glob.glob(os.path.join(REPO, "components/*/src/node.rs")))
+        files += [os.path.join(REPO, "components/runtime/src/record.rs"), os.path.join(REPO, "components/bridge/src/lib.rs")]
+        kinds = []
+        for f in files:
+            with open(f, encoding="utf-8") as fh:
+                text = fh.read()
+            kinds += re.findall(
+                r'pub const KIND: NodeKind = NodeKind \{\s*kind: "([\w-]+)",.*?inputs: &\[(.*?)\],\s*outputs: &\[([^\]]*)\]',
+                text,
+                re.S,
+            )
+        self.assertEqual(sorted(k for k, _, _ in kinds), sorted(services.KIND_INPUTS), "the node kinds' KIND constants")
         for kind, inputs, outputs in kinds:
-            parse = lambda s: tuple(consts[c.split("::")[-1].strip()] for c in s.split(",") if c.strip())  # noqa: E731
+            ticks = re.findall(r"InputDecl::new\(services::(\w+),\s*Read::Tick", inputs)
             with self.subTest(kind=kind):
-                self.assertEqual(services.KIND_INPUTS[kind], parse(inputs))
-                self.assertEqual(services.KIND_OUTPUTS[kind], parse(outputs))
+                self.assertEqual(services.KIND_INPUTS[kind], tuple(consts[c] for c in ticks))
+                outs = [c.split("::")[-1].strip() for c in outputs.split(",") if c.strip()]
+                self.assertEqual(services.KIND_OUTPUTS[kind], tuple(consts[c] for c in outs))
 
     def test_producers_from_a_pipeline_file(self):
         import tempfile

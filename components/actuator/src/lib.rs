@@ -716,3 +716,4 @@ mod tests {
         assert!(m.cable_disp_mm[10..].iter().all(|&v| v == 0.0));
     }
 }
+pub mod node;

@@ -1,5 +1,5 @@
 //! The adaptation logic, free of IPC: gather rows, decide staleness, fine-tune, validate,
-//! write generations, keep state. The `adapt` node (src/nodes/adapt.rs) drives it.
+//! write generations, keep state. The `adapt` node (components/adapt/src/node.rs) drives it.
 
 use crate::config::AdaptConfig;
 use bowden_interfaces::config::ConfigError;

@@ -33,3 +33,4 @@ mod config;
 
 pub use adapter::{AdaptError, Adapter, CheckRecord, Decision, Job, JobResult, Row, RowError, SwapRecord};
 pub use config::AdaptConfig;
+pub mod node;

@@ -12,6 +12,7 @@
 
 use bowden_interfaces::{fnv1a64, services, JointEstimate, RgbdFrameHeader, SampleHeader};
 use bowden_runtime::launch::LaunchOptions;
+use bowden_runtime::node::Registry;
 use bowden_runtime::ports::{IpcSettings, PortContext};
 use bowden_runtime::session::{RealtimeSession, SessionOptions};
 use bowden_runtime::stats::{LatencyHistogram, Percentiles};
@@ -79,7 +80,7 @@ fn bridge_pipeline(dir: &std::path::Path, prefix: &str, params: &str) -> Result<
     );
     let path = dir.join(format!("{prefix}bridge.toml"));
     std::fs::write(&path, text).map_err(|e| format!("{}: {e}", path.display()))?;
-    PipelineConfig::load(&path, &Overrides::default()).map_err(|e| e.to_string())
+    PipelineConfig::load(&path, &Overrides::default(), Registry(&[&crate::KIND])).map_err(|e| e.to_string())
 }
 
 fn settings(prefix: &str) -> IpcSettings {

@@ -29,7 +29,9 @@ pub mod bench;
 pub mod params;
 pub mod wire;
 
-use bowden_interfaces::SampleHeader;
+use bowden_interfaces::{services, SampleHeader};
+use bowden_runtime::node::{NodeKind, ParamPorts, Read, Schedule};
+use bowden_runtime::ports::{is_service, known_services};
 use bowden_runtime::ports::{
     visit_payload, FrameInput, FrameOutput, Input, Output, PayloadVisitor, PortContext, PortError, Wakeup,
 };
@@ -267,6 +269,74 @@ fn build_err(env: &StageEnv<'_>, what: &str, e: impl std::fmt::Display) -> Stage
         "{}: bridge `{}`: {what}: {e}",
         env.pipeline.origin, env.spec.name
     ))
+}
+
+/// The `bridge` node kind. Its ports come from its parameters: `export` services are read here
+/// (side inputs: they wake it, nothing waits for it — a bridge closes loops between machines),
+/// `import` services are published here. It wakes at least every 50 ms to watch its peer, and
+/// cannot run in lockstep.
+pub const KIND: NodeKind = NodeKind {
+    kind: "bridge",
+    summary: "forwards chosen services to and from another machine over Zenoh",
+    inputs: &[],
+    outputs: &[],
+    schedule: Schedule {
+        periodic: false,
+        period_us: None,
+        wake_timeout_us: Some(50_000),
+        deadline_us: None,
+    },
+    ports_from_params: Some(bridge_ports),
+    lockstep_refusal: Some(
+        "a bridge joins pipelines that run on different machines, each on its own clock: lockstep cannot span \
+         it; run both sides with `mode = \"realtime\"`",
+    ),
+    build: |env| Ok(Box::new(BridgeStage::from_env(env)?)),
+};
+
+/// The services a bridge's `params.export` (iceoryx2 → network) and `params.import`
+/// (network → iceoryx2) name (validated: known, not both ways, not the launcher's own).
+pub fn bridge_ports(params: &toml::Table) -> Result<ParamPorts, String> {
+    let list = |key: &str| -> Result<Vec<String>, String> {
+        let Some(v) = params.get(key) else {
+            return Ok(Vec::new());
+        };
+        let arr = v
+            .as_array()
+            .ok_or(format!("`{key}` must be an array of service names"))?;
+        let mut out: Vec<String> = Vec::new();
+        for s in arr {
+            let s = s.as_str().ok_or(format!("`{key}` must be an array of strings"))?;
+            if !is_service(s) {
+                return Err(format!(
+                    "`{key}`: unknown service `{s}` (known: {})",
+                    known_services().join(", ")
+                ));
+            }
+            if s == services::CLOCK || s == services::COMPONENT_STATUS {
+                return Err(format!(
+                    "`{key}`: `{s}` belongs to the launcher of each side and is not bridged"
+                ));
+            }
+            if out.iter().any(|o| o == s) {
+                return Err(format!("`{key}`: service `{s}` listed twice"));
+            }
+            out.push(s.to_string());
+        }
+        Ok(out)
+    };
+    let export = list("export")?;
+    let import = list("import")?;
+    if let Some(s) = export.iter().find(|s| import.contains(s)) {
+        return Err(format!("service `{s}` is both exported and imported"));
+    }
+    if export.is_empty() && import.is_empty() {
+        return Err("a bridge needs `export = [...]` and/or `import = [...]`".into());
+    }
+    Ok(ParamPorts {
+        inputs: export.into_iter().map(|s| (s, Read::Side)).collect(),
+        outputs: import,
+    })
 }
 
 impl BridgeStage {

@@ -41,6 +41,7 @@ fn pipeline(prefix: &str, params: &str) -> PipelineConfig {
         ConfigOrigin::File("test.toml".into()),
         ".".into(),
         &Overrides::default(),
+        bowden_runtime::node::Registry(&[&bowden_bridge::KIND]),
     )
     .expect("bridge pipeline is valid")
 }
@@ -48,6 +49,7 @@ fn pipeline(prefix: &str, params: &str) -> PipelineConfig {
 fn stage(cfg: &PipelineConfig, ports: &PortContext) -> BridgeStage {
     BridgeStage::from_env(&StageEnv {
         spec: &cfg.stages[0],
+        kind: &bowden_bridge::KIND,
         pipeline: cfg,
         ports,
     })
@@ -55,13 +57,7 @@ fn stage(cfg: &PipelineConfig, ports: &PortContext) -> BridgeStage {
 }
 
 fn cx() -> StepCx {
-    StepCx {
-        lockstep: false,
-        tick: 0,
-        t_now_ns: 0,
-        dt_ns: 0,
-        t_release_ns: 0,
-    }
+    StepCx::realtime(0, 0, 0, 0)
 }
 
 /// Steps `stages` until `done` or `secs` pass.

@@ -40,6 +40,7 @@ fn own_listeners() -> Vec<String> {
 fn build(cfg: &PipelineConfig, ports: &PortContext) -> BridgeStage {
     let s = BridgeStage::from_env(&StageEnv {
         spec: &cfg.stages[0],
+        kind: &bowden_bridge::KIND,
         pipeline: cfg,
         ports,
     })
@@ -66,6 +67,7 @@ fn a_dialling_bridge_listens_nowhere_and_a_listening_one_only_where_told() {
             ConfigOrigin::File("t.toml".into()),
             ".".into(),
             &Overrides::default(),
+            bowden_runtime::node::Registry(&[&bowden_bridge::KIND]),
         )
         .unwrap()
     };

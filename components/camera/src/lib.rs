@@ -39,6 +39,7 @@ pub mod bench;
 pub mod camera;
 pub mod config;
 pub mod error;
+pub mod node;
 pub mod noise;
 pub mod pngio;
 pub mod record;

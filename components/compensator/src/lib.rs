@@ -32,6 +32,7 @@ pub mod feedback;
 pub mod history;
 pub mod model;
 pub mod net;
+pub mod node;
 pub mod offline;
 pub mod prefix;
 mod recognise;

@@ -108,6 +108,7 @@ pub mod config;
 pub mod eval;
 pub mod geometry;
 pub mod joints;
+pub mod node;
 pub mod record;
 pub mod segment;
 pub mod sphere;

@@ -9,11 +9,12 @@ pub mod metrics;
 pub mod report;
 pub mod session;
 
-use bowden_interfaces::{CompensationMode, JointEstimate};
+use bowden_interfaces::{services, CompensationMode, JointCommand, JointEstimate, JointTarget, PlantState};
 use bowden_kinematics::{JointsDeg, N_JOINTS};
 use bowden_runtime::config::{Mode, Overrides, PipelineConfig};
 use bowden_runtime::launch::LaunchOptions;
-use bowden_runtime::session::{LockstepSession, SessionError, SessionOptions, Taps};
+use bowden_runtime::node::Registry;
+use bowden_runtime::session::{LockstepSession, SessionError, SessionOptions};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
@@ -80,6 +81,9 @@ pub struct EvalSettings {
     /// iceoryx2 prefix stem; each run gets its own prefix.
     pub prefix_stem: String,
     pub launch: LaunchOptions,
+    /// The node kinds of the program `launch` starts (the `bowden` binary's registry): the
+    /// pipeline files are validated against them.
+    pub kinds: Registry,
 }
 
 /// Writes a copy of the pipeline file with the compensator's `mode` set to `controller`.
@@ -258,17 +262,15 @@ pub fn run_trajectory(
         seed: Some(seed),
         ..Default::default()
     };
-    let cfg = PipelineConfig::load(pipeline_file, &ov).map_err(|e| EvalError::Config {
+    let cfg = PipelineConfig::load(pipeline_file, &ov, settings.kinds).map_err(|e| EvalError::Config {
         path: pipeline_file.to_path_buf(),
         message: e.to_string(),
     })?;
     let mut opts = SessionOptions::new(settings.launch.clone());
-    opts.taps = Taps {
-        joint_command: true,
-        plant_state: true,
-        joint_estimate: true,
-        ..Default::default()
-    };
+    opts.taps = [services::JOINT_COMMAND, services::PLANT_STATE, services::JOINT_ESTIMATE]
+        .map(String::from)
+        .to_vec();
+    opts.source = Some(services::JOINT_TARGET.into());
     let session_err = |source| EvalError::Session {
         what: what.clone(),
         source,
@@ -279,10 +281,11 @@ pub fn run_trajectory(
     let result = (|| {
         // One warm-up tick at home puts the camera's frame grid (one frame per held point,
         // see `camera_fps_for`) on the last tick of every point.
-        s.step_with_target(&[0.0; N_JOINTS]).map_err(session_err)?;
+        s.step_with(JointTarget::from_deg(&[0.0; N_JOINTS]))
+            .map_err(session_err)?;
         for q in approach {
             for _ in 0..settings.settle_ticks.max(1) {
-                let out = s.step_with_target(q).map_err(session_err)?;
+                let out = s.step_with(JointTarget::from_deg(q)).map_err(session_err)?;
                 if let Some(e) = out.events.first() {
                     return Err(EvalError::Run {
                         what: what.clone(),
@@ -296,17 +299,17 @@ pub fn run_trajectory(
             let mut last_state = None;
             let mut last_est: Option<JointEstimate> = None;
             for _ in 0..settings.settle_ticks.max(1) {
-                let out = s.step_with_target(q).map_err(session_err)?;
+                let out = s.step_with(JointTarget::from_deg(q)).map_err(session_err)?;
                 if let Some(e) = out.events.first() {
                     return Err(EvalError::Run {
                         what: what.clone(),
                         message: format!("a node failed at tick {}: {e}", out.tick),
                     });
                 }
-                last_cmd = out.joint_command.or(last_cmd);
-                last_state = out.plant_state.or(last_state);
+                last_cmd = out.get::<JointCommand>(services::JOINT_COMMAND).or(last_cmd);
+                last_state = out.get::<PlantState>(services::PLANT_STATE).or(last_state);
                 // Only the estimate of the point's last tick measures the settled robot.
-                last_est = out.joint_estimate;
+                last_est = out.get::<JointEstimate>(services::JOINT_ESTIMATE);
             }
             let (Some(cmd), Some(state)) = (last_cmd, last_state) else {
                 return Err(EvalError::Run {

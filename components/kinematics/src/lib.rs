@@ -66,6 +66,15 @@ impl Robot {
         Ok(Self::new(RobotConfig::load(path)?))
     }
 
+    /// The robot file `path`, or the shipped robot when there is none (a pipeline's
+    /// `[runtime] robot`).
+    pub fn load_or_paper(path: Option<&std::path::Path>) -> Result<Self, ConfigError> {
+        match path {
+            Some(p) => Self::load(p),
+            None => Ok(Self::paper_default()),
+        }
+    }
+
     /// The robot the repository ships (`configs/robot.toml`, embedded at build time), so
     /// tests and tools run without a path.
     pub fn paper_default() -> Self {

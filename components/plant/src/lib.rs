@@ -43,6 +43,7 @@ pub mod characterize;
 pub mod config;
 pub mod families;
 pub mod hysteresis;
+pub mod node;
 pub mod plant;
 
 pub use characterize::{characterize, Characterization, CharacterizeOptions, JointStats, PlotError};

@@ -18,9 +18,9 @@
 //! mode = "uncalibrated"
 //! ```
 
-use crate::ports::IpcSettings;
+use crate::node::{ParamPorts, Read, Registry};
+use crate::ports::{is_service, known_services, IpcSettings};
 use crate::rt::RtSettings;
-use bowden_interfaces::services;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -210,137 +210,20 @@ pub enum Activation {
     Event { timeout_ns: Option<u64> },
 }
 
-/// Built-in knowledge of a component kind: its dataflow and default activation.
-#[derive(Debug, Clone, Copy)]
-pub struct KindInfo {
-    pub kind: &'static str,
-    pub inputs: &'static [&'static str],
-    /// Read when present and woken by, not part of the tick's dataflow (e-stop).
-    pub side_inputs: &'static [&'static str],
-    /// Read when present (e.g. an IK hint), neither waited for nor woken by.
-    pub passive_inputs: &'static [&'static str],
-    pub outputs: &'static [&'static str],
-    pub periodic: bool,
-    pub default_wake_timeout_us: Option<u64>,
-    pub default_deadline_us: Option<u64>,
-}
-
-/// The kinds bowden ships.
-pub const KINDS: [KindInfo; 9] = [
-    KindInfo {
-        kind: "trajectory",
-        inputs: &[],
-        side_inputs: &[],
-        passive_inputs: &[],
-        outputs: &[services::JOINT_TARGET],
-        periodic: true,
-        default_wake_timeout_us: None,
-        default_deadline_us: Some(200),
-    },
-    KindInfo {
-        kind: "compensator",
-        inputs: &[services::JOINT_TARGET],
-        side_inputs: &[],
-        passive_inputs: &[],
-        outputs: &[services::JOINT_COMMAND],
-        periodic: false,
-        default_wake_timeout_us: None,
-        default_deadline_us: Some(500),
-    },
-    KindInfo {
-        kind: "actuator",
-        inputs: &[services::JOINT_COMMAND],
-        side_inputs: &[services::SAFETY],
-        passive_inputs: &[],
-        outputs: &[services::MOTOR_COMMAND],
-        periodic: false,
-        default_wake_timeout_us: Some(5_000),
-        default_deadline_us: Some(1_000),
-    },
-    KindInfo {
-        kind: "plant",
-        inputs: &[services::MOTOR_COMMAND],
-        side_inputs: &[],
-        passive_inputs: &[],
-        outputs: &[services::PLANT_STATE],
-        periodic: true,
-        default_wake_timeout_us: None,
-        default_deadline_us: None,
-    },
-    KindInfo {
-        kind: "camera",
-        inputs: &[services::PLANT_STATE],
-        side_inputs: &[],
-        passive_inputs: &[],
-        outputs: &[services::RGBD_FRAME],
-        periodic: true,
-        default_wake_timeout_us: None,
-        default_deadline_us: None,
-    },
-    KindInfo {
-        kind: "estimator",
-        inputs: &[services::RGBD_FRAME],
-        side_inputs: &[],
-        passive_inputs: &[services::MOTOR_COMMAND],
-        outputs: &[services::MARKER_SET, services::JOINT_ESTIMATE],
-        periodic: false,
-        default_wake_timeout_us: None,
-        default_deadline_us: None,
-    },
-    KindInfo {
-        // Online adaptation (docs/architecture.md, "Online adaptation"): reads what the chain
-        // sends and measures without ever being waited for, fine-tunes beside it, announces
-        // new models. Periodic so it drains its inputs whatever the chain does.
-        kind: "adapt",
-        inputs: &[],
-        side_inputs: &[],
-        passive_inputs: &[services::JOINT_COMMAND, services::JOINT_ESTIMATE],
-        outputs: &[services::MODEL_UPDATE],
-        periodic: true,
-        default_wake_timeout_us: None,
-        default_deadline_us: None,
-    },
-    KindInfo {
-        // Forwards chosen services to and from another machine over Zenoh (components/bridge).
-        // Its services come from `params.export` (read here, woken by, never waited for in the
-        // dataflow: a bridge closes loops between machines) and `params.import` (published
-        // here). Wakes at least every 50 ms to watch its peer.
-        kind: "bridge",
-        inputs: &[],
-        side_inputs: &[],
-        passive_inputs: &[],
-        outputs: &[],
-        periodic: false,
-        default_wake_timeout_us: Some(50_000),
-        default_deadline_us: None,
-    },
-    KindInfo {
-        kind: "recorder",
-        // Inputs come from `params.services`.
-        inputs: &[],
-        side_inputs: &[],
-        passive_inputs: &[],
-        outputs: &[],
-        periodic: true,
-        default_wake_timeout_us: None,
-        default_deadline_us: None,
-    },
-];
-
-/// Looks up a built-in kind.
-pub fn kind_info(kind: &str) -> Option<&'static KindInfo> {
-    KINDS.iter().find(|k| k.kind == kind)
-}
-
 /// One stage after validation.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StageSpec {
     pub name: String,
     pub kind: String,
     pub process: String,
+    /// Dataflow inputs ([`Read::Tick`]): waited for in lockstep, wake an event-driven process.
     pub inputs: Vec<String>,
+    /// [`Read::Side`]: wake the process, never waited for.
     pub side_inputs: Vec<String>,
+    /// [`Read::Hint`] and [`Read::Feedback`]: neither waited for nor woken by.
     pub passive_inputs: Vec<String>,
+    /// Every input with its read policy (the three lists above are views of it).
+    pub reads: Vec<(String, Read)>,
     pub outputs: Vec<String>,
     pub deadline_ns: Option<u64>,
     pub budget_ns: Option<u64>,
@@ -443,36 +326,43 @@ fn valid_name(n: &str) -> bool {
 
 impl PipelineConfig {
     /// Loads `arg`: a file path, or [`SIM_DEFAULT_NAME`] for the embedded default.
-    pub fn load_arg(arg: &str, ov: &Overrides) -> Result<Self, ConfigError> {
+    pub fn load_arg(arg: &str, ov: &Overrides, kinds: Registry) -> Result<Self, ConfigError> {
         if arg == SIM_DEFAULT_NAME {
-            Self::embedded_sim(ov)
+            Self::embedded_sim(ov, kinds)
         } else {
-            Self::load(Path::new(arg), ov)
+            Self::load(Path::new(arg), ov, kinds)
         }
     }
 
-    /// Loads and validates a pipeline file.
-    pub fn load(path: &Path, ov: &Overrides) -> Result<Self, ConfigError> {
+    /// Loads and validates a pipeline file; `kinds` are the node kinds the program knows.
+    pub fn load(path: &Path, ov: &Overrides, kinds: Registry) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
             origin: path.display().to_string(),
             source,
         })?;
         let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
-        Self::parse(&text, ConfigOrigin::File(path.to_path_buf()), base, ov)
+        Self::parse(&text, ConfigOrigin::File(path.to_path_buf()), base, ov, kinds)
     }
 
     /// The embedded default (`configs/sim.toml`); relative paths resolve against `./configs`.
-    pub fn embedded_sim(ov: &Overrides) -> Result<Self, ConfigError> {
+    pub fn embedded_sim(ov: &Overrides, kinds: Registry) -> Result<Self, ConfigError> {
         Self::parse(
             SIM_DEFAULT_TOML,
             ConfigOrigin::Embedded(SIM_DEFAULT_NAME),
             PathBuf::from("configs"),
             ov,
+            kinds,
         )
     }
 
     /// Parses and validates TOML text.
-    pub fn parse(text: &str, origin: ConfigOrigin, base_dir: PathBuf, ov: &Overrides) -> Result<Self, ConfigError> {
+    pub fn parse(
+        text: &str,
+        origin: ConfigOrigin,
+        base_dir: PathBuf,
+        ov: &Overrides,
+        kinds: Registry,
+    ) -> Result<Self, ConfigError> {
         let o = origin.to_string();
         let mut file: PipelineFile = toml::from_str(text).map_err(|e| ConfigError::Parse {
             origin: o.clone(),
@@ -499,7 +389,7 @@ impl PipelineConfig {
                 }
             }
         }
-        Self::validate(file, origin, base_dir, ov.clone())
+        Self::validate(file, origin, base_dir, ov.clone(), kinds)
     }
 
     /// Long by design (over 120 lines): one check per field, in the file's order, so every
@@ -510,6 +400,7 @@ impl PipelineConfig {
         origin: ConfigOrigin,
         base_dir: PathBuf,
         ov: Overrides,
+        kinds: Registry,
     ) -> Result<Self, ConfigError> {
         let o = origin.to_string();
         let bad = |field: String, problem: String| ConfigError::Invalid {
@@ -578,19 +469,32 @@ impl PipelineConfig {
                 return Err(bad(field("name"), "duplicate stage name".into()));
             }
             let kind = n.kind.clone().unwrap_or_else(|| n.name.clone());
-            let info = kind_info(&kind);
+            let info = kinds.get(&kind);
             if info.is_none() && n.exec.is_none() {
                 return Err(bad(
                     field("kind"),
                     format!(
                         "unknown kind `{kind}` (known: {}); an external node needs `exec`",
-                        KINDS.iter().map(|k| k.kind).collect::<Vec<_>>().join(", ")
+                        kinds.names().join(", ")
                     ),
                 ));
             }
-            let mut inputs: Vec<String> = match (&n.inputs, info) {
-                (Some(v), _) => v.clone(),
-                (None, Some(k)) => k.inputs.iter().map(|s| s.to_string()).collect(),
+            // The ports: the kind's declaration (or, for a kind whose ports depend on its
+            // parameters, what they name), unless the file lists them; an external node of
+            // unknown kind must list them.
+            let declared: Option<ParamPorts> = match info {
+                Some(k) => Some(match k.ports_from_params {
+                    Some(f) => f(&n.params).map_err(|p| bad(field("params"), p))?,
+                    None => ParamPorts {
+                        inputs: k.inputs.iter().map(|d| (d.service.to_string(), d.read)).collect(),
+                        outputs: k.outputs.iter().map(|s| s.to_string()).collect(),
+                    },
+                }),
+                None => None,
+            };
+            let reads: Vec<(String, Read)> = match (&n.inputs, &declared) {
+                (Some(v), _) => v.iter().map(|s| (s.clone(), Read::Tick)).collect(),
+                (None, Some(d)) => d.inputs.clone(),
                 (None, None) => {
                     return Err(bad(
                         field("inputs"),
@@ -598,13 +502,9 @@ impl PipelineConfig {
                     ))
                 }
             };
-            if kind == "recorder" {
-                let services = recorder_services(&n.params).map_err(|p| bad(field("params.services"), p))?;
-                inputs = services;
-            }
-            let outputs: Vec<String> = match (&n.outputs, info) {
+            let outputs: Vec<String> = match (&n.outputs, &declared) {
                 (Some(v), _) => v.clone(),
-                (None, Some(k)) => k.outputs.iter().map(|s| s.to_string()).collect(),
+                (None, Some(d)) => d.outputs.clone(),
                 (None, None) => {
                     return Err(bad(
                         field("outputs"),
@@ -612,34 +512,25 @@ impl PipelineConfig {
                     ))
                 }
             };
-            for s in inputs.iter().chain(outputs.iter()) {
-                if !services::ALL.contains(&s.as_str()) {
+            for s in reads.iter().map(|(s, _)| s).chain(outputs.iter()) {
+                if !is_service(s) {
                     return Err(bad(
                         field("inputs/outputs"),
-                        format!("unknown service `{s}` (known: {})", services::ALL.join(", ")),
+                        format!("unknown service `{s}` (known: {})", known_services().join(", ")),
                     ));
                 }
             }
-            let mut side_inputs: Vec<String> = info
-                .map(|k| k.side_inputs.iter().map(|s| s.to_string()).collect())
-                .unwrap_or_default();
-            let mut outputs = outputs;
-            if kind == "bridge" {
+            if let Some(why) = info.and_then(|k| k.lockstep_refusal) {
                 if file.runtime.mode == Mode::Lockstep {
-                    return Err(bad(
-                        field("kind"),
-                        "a bridge joins pipelines that run on different machines, each on its own clock: \
-                         lockstep cannot span it; run both sides with `mode = \"realtime\"`"
-                            .into(),
-                    ));
+                    return Err(bad(field("kind"), why.into()));
                 }
-                let (export, import) = bridge_services(&n.params).map_err(|p| bad(field("params"), p))?;
-                side_inputs = export;
-                outputs = import;
             }
-            let passive_inputs = info
-                .map(|k| k.passive_inputs.iter().map(|s| s.to_string()).collect())
-                .unwrap_or_default();
+            let with = |f: fn(Read) -> bool| -> Vec<String> {
+                reads.iter().filter(|(_, r)| f(*r)).map(|(s, _)| s.clone()).collect()
+            };
+            let inputs = with(|r| r == Read::Tick);
+            let side_inputs = with(|r| r == Read::Side);
+            let passive_inputs = with(|r| matches!(r, Read::Hint | Read::Feedback));
             let process = n.process.clone().unwrap_or_else(|| n.name.clone());
             if !valid_name(&process) {
                 return Err(bad(
@@ -670,7 +561,7 @@ impl PipelineConfig {
                     return Err(bad(field("exec"), "needs the executable as first element".into()));
                 }
             }
-            let deadline_us = n.deadline_us.or(info.and_then(|k| k.default_deadline_us));
+            let deadline_us = n.deadline_us.or(info.and_then(|k| k.schedule.deadline_us));
             let idx = stages.len();
             stages.push(StageSpec {
                 name: n.name.clone(),
@@ -679,6 +570,7 @@ impl PipelineConfig {
                 inputs,
                 side_inputs,
                 passive_inputs,
+                reads,
                 outputs,
                 deadline_ns: deadline_us.map(|d| d * 1000),
                 budget_ns: n.budget_us.map(|d| d * 1000),
@@ -773,16 +665,10 @@ impl PipelineConfig {
                     format!("an external executable cannot share process `{pname}` with other stages"),
                 ));
             }
-            let info = kind_info(&stages[idxs[0]].kind);
-            let periodic = first.period_us.is_some() || info.map(|k| k.periodic).unwrap_or(false);
+            let info = kinds.get(&stages[idxs[0]].kind);
+            let periodic = first.period_us.is_some() || info.is_some_and(|k| k.schedule.periodic);
             let activation = if periodic {
-                // Neither the recorder nor adapt is part of the control cycle: they drain their
-                // inputs (64 deep) at their own pace.
-                let default_period = match stages[idxs[0]].kind.as_str() {
-                    "recorder" => 10_000,
-                    "adapt" => 20_000,
-                    _ => rt.period_us,
-                };
+                let default_period = info.and_then(|k| k.schedule.period_us).unwrap_or(rt.period_us);
                 Activation::Periodic {
                     period_ns: first.period_us.unwrap_or(default_period) * 1000,
                     phase_ns: first.phase_us.unwrap_or(0) * 1000,
@@ -793,7 +679,7 @@ impl PipelineConfig {
                     .filter_map(|&i| {
                         sections[i]
                             .wake_timeout_us
-                            .or(kind_info(&stages[i].kind).and_then(|k| k.default_wake_timeout_us))
+                            .or(kinds.get(&stages[i].kind).and_then(|k| k.schedule.wake_timeout_us))
                     })
                     .min();
                 Activation::Event {
@@ -894,69 +780,4 @@ impl PipelineConfig {
             })
             .collect()
     }
-}
-
-/// The services a bridge's `params.export` (iceoryx2 → network) and `params.import`
-/// (network → iceoryx2) name (validated: known, not both ways, not the launcher's own).
-pub(crate) fn bridge_services(params: &toml::Table) -> Result<(Vec<String>, Vec<String>), String> {
-    let list = |key: &str| -> Result<Vec<String>, String> {
-        let Some(v) = params.get(key) else {
-            return Ok(Vec::new());
-        };
-        let arr = v
-            .as_array()
-            .ok_or(format!("`{key}` must be an array of service names"))?;
-        let mut out: Vec<String> = Vec::new();
-        for s in arr {
-            let s = s.as_str().ok_or(format!("`{key}` must be an array of strings"))?;
-            if !services::ALL.contains(&s) {
-                return Err(format!(
-                    "`{key}`: unknown service `{s}` (known: {})",
-                    services::ALL.join(", ")
-                ));
-            }
-            if s == services::CLOCK || s == services::COMPONENT_STATUS {
-                return Err(format!(
-                    "`{key}`: `{s}` belongs to the launcher of each side and is not bridged"
-                ));
-            }
-            if out.iter().any(|o| o == s) {
-                return Err(format!("`{key}`: service `{s}` listed twice"));
-            }
-            out.push(s.to_string());
-        }
-        Ok(out)
-    };
-    let export = list("export")?;
-    let import = list("import")?;
-    if let Some(s) = export.iter().find(|s| import.contains(s)) {
-        return Err(format!("service `{s}` is both exported and imported"));
-    }
-    if export.is_empty() && import.is_empty() {
-        return Err("a bridge needs `export = [...]` and/or `import = [...]`".into());
-    }
-    Ok((export, import))
-}
-
-/// The services a recorder's `params.services` names (validated).
-pub(crate) fn recorder_services(params: &toml::Table) -> Result<Vec<String>, String> {
-    let Some(v) = params.get("services") else {
-        return Err("a recorder needs `services = [...]`".into());
-    };
-    let arr = v.as_array().ok_or("must be an array of service names")?;
-    let mut out = Vec::new();
-    for s in arr {
-        let s = s.as_str().ok_or("must be an array of strings")?;
-        if !services::ALL.contains(&s) {
-            return Err(format!("unknown service `{s}`"));
-        }
-        if out.iter().any(|o: &String| o == s) {
-            return Err(format!("service `{s}` listed twice"));
-        }
-        out.push(s.to_string());
-    }
-    if out.is_empty() {
-        return Err("no services to record".into());
-    }
-    Ok(out)
 }

@@ -22,10 +22,10 @@
 
 use crate::alloc;
 use crate::config::{Activation, PipelineConfig};
+use crate::node::Registry;
 use crate::ports::{Input, Output, PortContext, PortError, Waiter, Wakeup};
-use crate::record::RecorderStage;
 use crate::rt::{self, RtReport};
-use crate::stage::{state, Stage, StageBuildError, StageEnv, StageFactory, StepCx};
+use crate::stage::{state, Stage, StageBuildError, StageEnv, StepCx};
 use crate::stats::{fmt_ns, LatencyHistogram, Percentiles};
 use crate::sys::{self, monotonic_ns, Reactor};
 use bowden_interfaces::{services, ClockTick, ComponentStatus};
@@ -203,12 +203,12 @@ fn os_err(process: &str, what: &str, e: std::io::Error) -> ExecError {
     }
 }
 
-/// Runs process `process` of `cfg` until the launcher's shutdown tick or SIGINT/SIGTERM.
-/// `factory` builds every stage kind except the recorder.
+/// Runs process `process` of `cfg` until the launcher's shutdown tick or SIGINT/SIGTERM,
+/// building each of its stages with its kind's constructor from `kinds`.
 pub fn run_process(
     cfg: &PipelineConfig,
     process: &str,
-    factory: &StageFactory<'_>,
+    kinds: Registry,
     opts: &ProcessOptions,
 ) -> Result<ProcessReport, ExecError> {
     let pspec = cfg
@@ -226,16 +226,21 @@ pub fn run_process(
     let local_stages: Vec<&str> = pspec.stages.iter().map(|&i| cfg.stages[i].name.as_str()).collect();
     for &i in &pspec.stages {
         let spec = &cfg.stages[i];
+        let kind = kinds.get(&spec.kind).ok_or_else(|| StageBuildError {
+            stage: spec.name.clone(),
+            message: format!(
+                "no built-in node of kind `{}` (known: {})",
+                spec.kind,
+                kinds.names().join(", ")
+            ),
+        })?;
         let env = StageEnv {
             spec,
+            kind,
             pipeline: cfg,
             ports: &ports,
         };
-        let stage: Box<dyn Stage> = if spec.kind == "recorder" {
-            Box::new(RecorderStage::from_env(&env)?)
-        } else {
-            factory(&env)?
-        };
+        let stage: Box<dyn Stage> = (kind.build)(&env)?;
         let mut wakeups = Vec::new();
         for out in &spec.outputs {
             wakeups.push(ports.notifier(out)?);
@@ -484,13 +489,7 @@ impl Executor {
             }
             let a0 = alloc::thread_counts();
             let k = tick.header.tick;
-            let cx = StepCx {
-                lockstep: true,
-                tick: k,
-                t_now_ns: tick.t_sim_ns,
-                dt_ns: tick.dt_ns,
-                t_release_ns: tick.t_sim_ns,
-            };
+            let cx = StepCx::lockstep(k, tick.t_sim_ns, tick.dt_ns);
             for i in 0..self.slots.len() {
                 loop {
                     self.refresh_upstreams();
@@ -515,7 +514,7 @@ impl Executor {
                     slot.stats.active += 1;
                     slot.stats.compute.record(t1 - t0);
                 }
-                self.publish_status(i, k, cx.t_now_ns, state::RUNNING)?;
+                self.publish_status(i, k, cx.t_now_ns(), state::RUNNING)?;
                 for w in &self.slots[i].wakeups {
                     w.notify()?;
                 }
@@ -576,7 +575,7 @@ impl Executor {
             // Periodic: the deadline counts from the nominal release (classic response time);
             // event-driven: from the origin of the sample that triggered the work.
             let since = if periodic {
-                Some(cx.t_release_ns)
+                Some(cx.t_release_ns())
             } else {
                 rep.t_origin_ns
             };
@@ -663,13 +662,7 @@ impl Executor {
                     }
                     let a0 = alloc::thread_counts();
                     self.wake_latency.record(now - release);
-                    let cx = StepCx {
-                        lockstep: false,
-                        tick: cycle,
-                        t_now_ns: now,
-                        dt_ns: period_ns,
-                        t_release_ns: release,
-                    };
+                    let cx = StepCx::realtime(cycle, now, period_ns, release);
                     self.step_all(&cx)?;
                     let done = monotonic_ns();
                     self.maybe_status(done, &mut next_status, cycle)?;
@@ -699,13 +692,7 @@ impl Executor {
                     return Ok(());
                 }
                 let now = monotonic_ns();
-                let cx = StepCx {
-                    lockstep: false,
-                    tick: cycle,
-                    t_now_ns: now,
-                    dt_ns: 0,
-                    t_release_ns: now,
-                };
+                let cx = StepCx::realtime(cycle, now, 0, now);
                 self.step_all(&cx)?;
                 self.maybe_status(monotonic_ns(), &mut next_status, cycle)?;
                 self.audit.record(alloc::thread_counts().since(&a0));

@@ -3,6 +3,7 @@
 //!
 //! - [`ports`]: typed iceoryx2 publishers/subscribers with one QoS table, a per-deployment
 //!   shared-memory prefix and service namespace, zero-copy RGBD frames;
+//! - [`node`]: the node contract (declared ports and their [`node::Read`] policies);
 //! - [`stage`] and [`executor`]: the [`stage::Stage`] abstraction and the scheduler of one process,
 //!   in **lockstep** (simulated clock, bit-for-bit reproducible) or **real time** (absolute
 //!   deadlines, SCHED_FIFO, latency histograms, deadline-miss counts);
@@ -21,6 +22,7 @@ pub mod cleanup;
 pub mod config;
 pub mod executor;
 pub mod launch;
+pub mod node;
 pub mod ports;
 pub mod record;
 pub mod replay;
@@ -32,6 +34,7 @@ pub mod sys;
 
 pub use config::{Mode, Overrides, PipelineConfig};
 pub use executor::{run_process, ProcessOptions, ProcessReport};
+pub use node::Read;
 pub use ports::{Input, IpcSettings, Message, Output, PortContext};
 pub use session::{LockstepSession, RealtimeSession, SessionOptions, TickOutputs};
 pub use stage::{Stage, StageEnv, StepCx, StepReport};

@@ -30,6 +30,9 @@ use iceoryx2::service::Service;
 use std::fmt::Debug;
 use std::os::fd::RawFd;
 
+use crate::node::Read;
+use crate::stage::StepCx;
+
 /// The inter-process service variant every bowden process uses.
 pub type Ipc = iceoryx2::service::ipc::Service;
 
@@ -117,6 +120,16 @@ pub fn visit_payload<V: PayloadVisitor>(service: &str, v: V) -> Option<V::Output
         s::RGBD_FRAME => v.frame(),
         _ => return None,
     })
+}
+
+/// Is `service` one of the sample services (a full name without namespace, `bowden/...`)?
+pub fn is_service(service: &str) -> bool {
+    bowden_interfaces::services::ALL.contains(&service)
+}
+
+/// Every sample service, for error messages.
+pub fn known_services() -> &'static [&'static str] {
+    &bowden_interfaces::services::ALL
 }
 
 /// Something went wrong with an iceoryx2 port; names the service.
@@ -394,6 +407,7 @@ impl<S: Service> PortContext<S> {
             service: full,
             pending: None,
             stats: InputStats::default(),
+            read: Read::Tick,
         })
     }
 
@@ -553,9 +567,34 @@ pub struct Input<T: Message, S: Service = Ipc> {
     /// A sample of a later tick, kept for its tick (lockstep).
     pending: Option<T>,
     stats: InputStats,
+    read: Read,
 }
 
 impl<T: Message, S: Service> Input<T, S> {
+    /// The same port read with `read` (the default is [`Read::Tick`]).
+    pub fn with_read(mut self, read: Read) -> Self {
+        self.read = read;
+        self
+    }
+
+    /// The next sample by the port's declared [`Read`] policy in the activation `cx`:
+    /// - [`Read::Tick`], [`Read::Hint`]: lockstep, the sample of this tick (older ones skipped
+    ///   and counted, a later one kept for its tick); real time, the newest (older ones skipped).
+    ///   At most one per activation.
+    /// - [`Read::Feedback`]: the next sample of an earlier tick, oldest first (lockstep: samples
+    ///   of this tick or later stay queued, so the result does not depend on which process ran
+    ///   first); real time, the next that arrived.
+    /// - [`Read::Side`]: the next that arrived, in both modes.
+    #[inline]
+    pub fn next(&mut self, cx: &StepCx) -> Option<T> {
+        match (self.read, cx.reproducible()) {
+            (Read::Tick | Read::Hint, true) => self.take_tick(cx.tick()),
+            (Read::Tick | Read::Hint, false) => self.latest(),
+            (Read::Feedback, true) => self.next_upto(cx.tick().saturating_sub(1)),
+            (Read::Feedback, false) | (Read::Side, _) => self.recv(),
+        }
+    }
+
     fn pop(&mut self) -> Option<T> {
         if let Some(p) = self.pending.take() {
             return Some(p);
@@ -615,15 +654,6 @@ impl<T: Message, S: Service> Input<T, S> {
             return None;
         }
         Some(s)
-    }
-
-    /// Lockstep: the sample of `tick`; real time: the newest.
-    pub fn take(&mut self, lockstep: bool, tick: u64) -> Option<T> {
-        if lockstep {
-            self.take_tick(tick)
-        } else {
-            self.latest()
-        }
     }
 
     /// Live publishers of the service (a dead one counts until its resources are cleaned).
@@ -790,10 +820,11 @@ impl<S: Service> FrameInput<S> {
         Some(s)
     }
 
-    /// Lockstep: the frame of `tick`; real time: the newest.
-    pub fn take(&mut self, lockstep: bool, tick: u64) -> Option<Frame<S>> {
-        if lockstep {
-            self.take_tick(tick)
+    /// The frame of this activation: lockstep, the frame of this tick; real time, the newest
+    /// (a frame is always a [`Read::Tick`] input).
+    pub fn next(&mut self, cx: &StepCx) -> Option<Frame<S>> {
+        if cx.reproducible() {
+            self.take_tick(cx.tick())
         } else {
             self.latest()
         }

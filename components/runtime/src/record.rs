@@ -19,8 +19,8 @@
 //! service, so FIFO order is the producer's order): the bytes depend only on the run's inputs.
 //! A log without a valid index (the recorder was killed) is still readable: the reader scans it.
 
-use crate::config::recorder_services;
-use crate::ports::{visit_payload, FrameInput, Input, Message, PayloadVisitor};
+use crate::node::{NodeKind, ParamPorts, Read as ReadPolicy, Schedule};
+use crate::ports::{is_service, visit_payload, FrameInput, Input, Message, PayloadVisitor};
 use crate::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
 use bowden_interfaces::{services, RgbdFrameHeader};
 use std::fs::File;
@@ -637,6 +637,59 @@ pub struct RecorderParams {
     pub services: Vec<String>,
 }
 
+/// The recorder's node kind: the one kind the runtime provides itself. Its inputs are the
+/// services its parameters name; in lockstep it handles tick k once their producers are done
+/// with k. Periodic (every 10 ms in real time): it is not part of the control cycle and drains
+/// its 64-deep queues at its own pace.
+pub const KIND: NodeKind = NodeKind {
+    kind: "recorder",
+    summary: "writes chosen services to a fixed-layout log (`bowden replay` reads it)",
+    inputs: &[],
+    outputs: &[],
+    schedule: Schedule {
+        periodic: true,
+        period_us: Some(10_000),
+        wake_timeout_us: None,
+        deadline_us: None,
+    },
+    ports_from_params: Some(recorder_ports),
+    lockstep_refusal: None,
+    build: |env| Ok(Box::new(RecorderStage::from_env(env)?)),
+};
+
+/// The services a recorder's `params.services` names (validated), as its inputs.
+fn recorder_ports(params: &toml::Table) -> Result<ParamPorts, String> {
+    Ok(ParamPorts {
+        inputs: recorder_services(params)?
+            .into_iter()
+            .map(|s| (s, ReadPolicy::Tick))
+            .collect(),
+        outputs: Vec::new(),
+    })
+}
+
+fn recorder_services(params: &toml::Table) -> Result<Vec<String>, String> {
+    let Some(v) = params.get("services") else {
+        return Err("a recorder needs `services = [...]`".into());
+    };
+    let arr = v.as_array().ok_or("must be an array of service names")?;
+    let mut out = Vec::new();
+    for s in arr {
+        let s = s.as_str().ok_or("must be an array of strings")?;
+        if !is_service(s) {
+            return Err(format!("unknown service `{s}`"));
+        }
+        if out.iter().any(|o: &String| o == s) {
+            return Err(format!("service `{s}` listed twice"));
+        }
+        out.push(s.to_string());
+    }
+    if out.is_empty() {
+        return Err("no services to record".into());
+    }
+    Ok(out)
+}
+
 /// The recorder as a pipeline stage.
 pub struct RecorderStage {
     lockstep: bool,
@@ -689,7 +742,7 @@ impl RecorderStage {
         }
         let n = sources.len();
         Ok(Self {
-            lockstep: env.lockstep(),
+            lockstep: env.reproducible(),
             writer,
             sources,
             counts: vec![0; n],
@@ -702,7 +755,7 @@ impl RecorderStage {
 
 impl Stage for RecorderStage {
     fn step(&mut self, cx: &StepCx) -> Result<StepReport, StageError> {
-        let upto = cx.lockstep.then_some(cx.tick);
+        let upto = cx.reproducible().then_some(cx.tick());
         let mut any = false;
         for (i, (_, src)) in self.sources.iter_mut().enumerate() {
             match src.drain(upto, i as u16, &mut self.writer, &mut self.gaps) {
@@ -736,13 +789,7 @@ impl Stage for RecorderStage {
         // Real time: whatever is still queued belongs in the log too. Lockstep: every tick was
         // recorded when it completed; samples arriving during shutdown are not part of the run.
         if !self.lockstep {
-            let _ = self.step(&StepCx {
-                lockstep: false,
-                tick: 0,
-                t_now_ns: 0,
-                dt_ns: 0,
-                t_release_ns: 0,
-            });
+            let _ = self.step(&StepCx::realtime(0, 0, 0, 0));
         }
         self.writer.finish().map_err(|e| StageError::Fatal {
             stage: "recorder".into(),

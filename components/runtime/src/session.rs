@@ -5,18 +5,21 @@
 //! # Lockstep
 //!
 //! ```no_run
+//! use bowden_interfaces::{services, PlantState};
 //! use bowden_runtime::config::{Mode, Overrides, PipelineConfig};
 //! use bowden_runtime::session::{LockstepSession, SessionOptions};
 //! use bowden_runtime::launch::LaunchOptions;
+//! # let kinds = bowden_runtime::node::Registry(&[&bowden_runtime::record::KIND]);
 //!
+//! // `kinds`: the node kinds of the program that runs the children (the `bowden` binary's table).
 //! let ov = Overrides { mode: Some(Mode::Lockstep), prefix: Some("eval42_".into()), ..Default::default() };
-//! let cfg = PipelineConfig::load_arg("configs/sim.toml", &ov)?;
+//! let cfg = PipelineConfig::load_arg("configs/sim.toml", &ov, kinds)?;
 //! let mut opts = SessionOptions::new(LaunchOptions::current_exe()?);
-//! opts.taps.plant_state = true;
+//! opts.taps.push(services::PLANT_STATE.into());
 //! let mut s = LockstepSession::start(&cfg, opts)?;        // children up, stale resources cleaned
 //! for _ in 0..2000 {
 //!     let out = s.step()?;                                  // tick k done by every stage
-//!     if let Some(p) = out.plant_state { println!("{:?}", &p.q_phy_deg[..5]); }
+//!     if let Some(p) = out.get::<PlantState>(services::PLANT_STATE) { println!("{:?}", &p.q_phy_deg[..5]); }
 //! }
 //! let report = s.shutdown()?;                               // children exit, nothing left in /dev/shm
 //! println!("{}", report.format_summary());
@@ -25,9 +28,9 @@
 //!
 //! Each [`LockstepSession::step`] publishes `ClockTick` k and returns once every live stage has
 //! reported tick k done; the samples of tick k of the tapped services are in the returned
-//! [`TickOutputs`]. When the pipeline has no stage producing `bowden/joint_target` (no
-//! trajectory node), the session is the target source: call
-//! [`LockstepSession::step_with_target`] with q_desired for each tick.
+//! [`TickOutputs`]. A session can also be the source of one service no stage produces
+//! ([`SessionOptions::source`], e.g. the targets of a pipeline without a trajectory node): call
+//! [`LockstepSession::step_with`] with each tick's sample.
 //!
 //! A child that dies mid-run is detected (its exit status is in [`TickOutputs::events`]); its
 //! stages are declared stopped on its behalf so the others go on (the actuator's watchdog then
@@ -37,14 +40,11 @@
 use crate::cleanup::{self, CleanupReport};
 use crate::config::PipelineConfig;
 use crate::launch::{LaunchOptions, SpawnError, Supervisor};
-use crate::ports::{Input, Output, PortContext, PortError, Waiter, Wakeup};
+use crate::ports::{visit_payload, Input, Message, Output, PayloadVisitor, PortContext, PortError, Waiter, Wakeup};
 use crate::stage::state;
 use crate::stats::fmt_ns;
 use crate::sys::{self, monotonic_ns, Reactor};
-use bowden_interfaces::{
-    services, ClockTick, ComponentStatus, JointCommand, JointEstimate, JointTarget, MarkerSet, MotorCommand,
-    PlantState, MAX_JOINTS,
-};
+use bowden_interfaces::{services, ClockTick, ComponentStatus};
 use std::time::{Duration, Instant};
 
 /// Why a session failed.
@@ -66,35 +66,16 @@ pub enum SessionError {
     Os(String),
 }
 
-/// Which services a lockstep session reads back per tick.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct Taps {
-    pub joint_target: bool,
-    pub joint_command: bool,
-    pub motor_command: bool,
-    pub plant_state: bool,
-    pub marker_set: bool,
-    pub joint_estimate: bool,
-}
-
-impl Taps {
-    pub fn all() -> Self {
-        Self {
-            joint_target: true,
-            joint_command: true,
-            motor_command: true,
-            plant_state: true,
-            marker_set: true,
-            joint_estimate: true,
-        }
-    }
-}
-
 /// Options of a session.
 #[derive(Debug, Clone)]
 pub struct SessionOptions {
     pub launch: LaunchOptions,
-    pub taps: Taps,
+    /// Lockstep: the services read back per tick (full names, `bowden/...`), in
+    /// [`TickOutputs::samples`].
+    pub taps: Vec<String>,
+    /// Lockstep: a service the session publishes itself, one sample per tick
+    /// ([`LockstepSession::step_with`]); no stage of the pipeline may produce it.
+    pub source: Option<String>,
     /// Print start-up, events and the summary to stderr.
     pub verbose: bool,
     /// Lockstep: give up on a tick after this long without progress.
@@ -109,7 +90,8 @@ impl SessionOptions {
     pub fn new(launch: LaunchOptions) -> Self {
         Self {
             launch,
-            taps: Taps::default(),
+            taps: Vec::new(),
+            source: None,
             verbose: false,
             stall_timeout: Duration::from_secs(60),
             remove_prefix_files: true,
@@ -123,14 +105,21 @@ impl SessionOptions {
 pub struct TickOutputs {
     pub tick: u64,
     pub t_sim_ns: u64,
-    pub joint_target: Option<JointTarget>,
-    pub joint_command: Option<JointCommand>,
-    pub motor_command: Option<MotorCommand>,
-    pub plant_state: Option<PlantState>,
-    pub marker_set: Option<MarkerSet>,
-    pub joint_estimate: Option<JointEstimate>,
+    /// The tapped services' samples of this tick (service, the sample's bytes), in the order
+    /// of [`SessionOptions::taps`]; a service that sent nothing this tick is absent.
+    pub samples: Vec<(String, Vec<u8>)>,
     /// Supervision events during this tick (a process exited, was restarted).
     pub events: Vec<String>,
+}
+
+impl TickOutputs {
+    /// The sample of `service` of this tick, if it was tapped and sent one.
+    pub fn get<T: Message>(&self, service: &str) -> Option<T> {
+        self.samples
+            .iter()
+            .find(|(s, _)| s == service)
+            .and_then(|(_, b)| T::from_bytes(b))
+    }
 }
 
 /// What a run did, for the exit summary.
@@ -460,8 +449,8 @@ pub struct LockstepSession {
     tick: u64,
     t0: Instant,
     report: RunReport,
-    target_out: Option<(Output<JointTarget>, Wakeup)>,
-    taps: TapInputs,
+    source: Option<SourceOut>,
+    taps: Vec<(String, Box<dyn Tap>)>,
     pending_restarts: Vec<usize>,
     // Field order = drop order: the supervisor stops children before our node goes away.
     sup: Supervisor,
@@ -469,14 +458,74 @@ pub struct LockstepSession {
     guard: CleanupGuard,
 }
 
-#[derive(Default)]
-struct TapInputs {
-    joint_target: Option<Input<JointTarget>>,
-    joint_command: Option<Input<JointCommand>>,
-    motor_command: Option<Input<MotorCommand>>,
-    plant_state: Option<Input<PlantState>>,
-    marker_set: Option<Input<MarkerSet>>,
-    joint_estimate: Option<Input<JointEstimate>>,
+/// A tapped service: hands out the bytes of the sample of tick k.
+trait Tap {
+    fn take(&mut self, tick: u64) -> Option<Vec<u8>>;
+}
+
+impl<T: Message> Tap for Input<T> {
+    fn take(&mut self, tick: u64) -> Option<Vec<u8>> {
+        self.take_tick(tick).map(|v| v.as_bytes().to_vec())
+    }
+}
+
+/// Opens a tap of any sample service.
+struct OpenTap<'a> {
+    ports: &'a PortContext,
+    service: &'a str,
+}
+
+impl PayloadVisitor for OpenTap<'_> {
+    type Output = Result<Box<dyn Tap>, SessionError>;
+    fn sample<T: Message>(self) -> Self::Output {
+        Ok(Box::new(self.ports.input::<T>(self.service, 8)?))
+    }
+    fn frame(self) -> Self::Output {
+        Err(SessionError::Usage(format!(
+            "`{}` carries frames: a session taps fixed-size samples (record frames with a recorder)",
+            self.service
+        )))
+    }
+}
+
+/// Type-erased publisher: (bytes of a sample, tick, t_sim) → publish and wake the consumers.
+type PublishBytes = Box<dyn FnMut(&[u8], u64, u64) -> Result<(), SessionError>>;
+
+/// The session's own source: publishes the caller's sample of each tick.
+struct SourceOut {
+    service: String,
+    publish: PublishBytes,
+}
+
+struct OpenSource<'a> {
+    ports: &'a PortContext,
+    service: &'a str,
+}
+
+impl PayloadVisitor for OpenSource<'_> {
+    type Output = Result<SourceOut, SessionError>;
+    fn sample<T: Message>(self) -> Self::Output {
+        let mut out = self.ports.output::<T>(self.service)?;
+        let wake = self.ports.notifier(self.service)?;
+        let service = self.service.to_string();
+        let name = service.clone();
+        Ok(SourceOut {
+            service,
+            publish: Box::new(move |bytes, tick, t_sim| {
+                let v = T::from_bytes(bytes)
+                    .ok_or_else(|| SessionError::Usage(format!("a sample of another type given for `{name}`")))?;
+                out.publish(tick, t_sim, v)?;
+                wake.notify()?;
+                Ok(())
+            }),
+        })
+    }
+    fn frame(self) -> Self::Output {
+        Err(SessionError::Usage(format!(
+            "`{}` carries frames: a session publishes fixed-size samples only",
+            self.service
+        )))
+    }
 }
 
 impl LockstepSession {
@@ -491,31 +540,26 @@ impl LockstepSession {
         }
         let (sup, core, cleanup_at_start, startup) = start_common(cfg, &opts)?;
         let p = &core.ports;
-        let t = opts.taps;
-        let taps = TapInputs {
-            joint_target: t.joint_target.then(|| p.input(services::JOINT_TARGET, 8)).transpose()?,
-            joint_command: t
-                .joint_command
-                .then(|| p.input(services::JOINT_COMMAND, 8))
-                .transpose()?,
-            motor_command: t
-                .motor_command
-                .then(|| p.input(services::MOTOR_COMMAND, 8))
-                .transpose()?,
-            plant_state: t.plant_state.then(|| p.input(services::PLANT_STATE, 8)).transpose()?,
-            marker_set: t.marker_set.then(|| p.input(services::MARKER_SET, 8)).transpose()?,
-            joint_estimate: t
-                .joint_estimate
-                .then(|| p.input(services::JOINT_ESTIMATE, 8))
-                .transpose()?,
-        };
-        let target_out = if cfg.producer_of(services::JOINT_TARGET).is_none() {
-            Some((
-                p.output::<JointTarget>(services::JOINT_TARGET)?,
-                p.notifier(services::JOINT_TARGET)?,
-            ))
-        } else {
-            None
+        let mut taps: Vec<(String, Box<dyn Tap>)> = Vec::new();
+        for service in &opts.taps {
+            let tap = visit_payload(service, OpenTap { ports: p, service })
+                .unwrap_or_else(|| Err(SessionError::Usage(format!("cannot tap unknown service `{service}`"))))?;
+            taps.push((service.clone(), tap));
+        }
+        let source = match &opts.source {
+            Some(service) => {
+                if let Some(i) = cfg.producer_of(service) {
+                    return Err(SessionError::Usage(format!(
+                        "the session cannot publish `{service}`: stage `{}` produces it",
+                        cfg.stages[i].name
+                    )));
+                }
+                Some(
+                    visit_payload(service, OpenSource { ports: p, service })
+                        .unwrap_or_else(|| Err(SessionError::Usage(format!("unknown service `{service}`"))))?,
+                )
+            }
+            None => None,
         };
         if opts.verbose {
             eprintln!(
@@ -535,7 +579,7 @@ impl LockstepSession {
                 cleanup_at_start,
                 ..Default::default()
             },
-            target_out,
+            source,
             taps,
             pending_restarts: Vec::new(),
             guard: CleanupGuard {
@@ -564,38 +608,34 @@ impl LockstepSession {
         self.sup.pids()
     }
 
-    /// Whether the session itself publishes the targets (no trajectory stage).
-    pub fn drives_targets(&self) -> bool {
-        self.target_out.is_some()
+    /// The service the session publishes itself ([`SessionOptions::source`]), if any.
+    pub fn source(&self) -> Option<&str> {
+        self.source.as_ref().map(|s| s.service.as_str())
     }
 
-    /// Runs one tick of a pipeline that has its own trajectory stage.
+    /// Runs one tick (a session without a [`SessionOptions::source`]).
     pub fn step(&mut self) -> Result<TickOutputs, SessionError> {
-        if self.target_out.is_some() {
-            return Err(SessionError::Usage(
-                "the pipeline has no trajectory stage: use step_with_target".into(),
-            ));
+        if let Some(s) = &self.source {
+            return Err(SessionError::Usage(format!(
+                "the session publishes `{}`: give each tick's sample with step_with",
+                s.service
+            )));
         }
         self.step_inner(None)
     }
 
-    /// Runs one tick with q_desired given by the caller (pipelines without a trajectory stage).
-    pub fn step_with_target(&mut self, q_desired_deg: &[f64]) -> Result<TickOutputs, SessionError> {
-        if self.target_out.is_none() {
+    /// Runs one tick, publishing `sample` (stamped with the tick and its simulated time) on
+    /// the session's [`SessionOptions::source`] before the tick starts.
+    pub fn step_with<T: Message>(&mut self, sample: T) -> Result<TickOutputs, SessionError> {
+        if self.source.is_none() {
             return Err(SessionError::Usage(
-                "the pipeline has a trajectory stage producing the targets: use step".into(),
+                "the session has no source service (SessionOptions::source): use step".into(),
             ));
         }
-        if q_desired_deg.len() > MAX_JOINTS {
-            return Err(SessionError::Usage(format!(
-                "{} joints given, at most {MAX_JOINTS}",
-                q_desired_deg.len()
-            )));
-        }
-        self.step_inner(Some(q_desired_deg))
+        self.step_inner(Some(sample.as_bytes()))
     }
 
-    fn step_inner(&mut self, target: Option<&[f64]>) -> Result<TickOutputs, SessionError> {
+    fn step_inner(&mut self, sample: Option<&[u8]>) -> Result<TickOutputs, SessionError> {
         let k = self.tick;
         let dt = self.cfg.period_ns();
         let t_sim = k * dt;
@@ -608,14 +648,8 @@ impl LockstepSession {
         for i in std::mem::take(&mut self.pending_restarts) {
             self.restart_process(i, &mut out)?;
         }
-        if let (Some(q), Some((o, w))) = (target, self.target_out.as_mut()) {
-            let mut jt = JointTarget {
-                n_joints: q.len() as u32,
-                ..Default::default()
-            };
-            jt.q_desired_deg[..q.len()].copy_from_slice(q);
-            o.publish(k, t_sim, jt)?;
-            w.notify()?;
+        if let (Some(bytes), Some(src)) = (sample, self.source.as_mut()) {
+            (src.publish)(bytes, k, t_sim)?;
         }
         self.core.publish_clock(k, t_sim, dt, false)?;
         let mut last_progress = Instant::now();
@@ -657,13 +691,11 @@ impl LockstepSession {
         }
         // One more look: a child that died right at the end of the tick.
         self.supervise(k, &mut out)?;
-        let t = &mut self.taps;
-        out.joint_target = t.joint_target.as_mut().and_then(|i| i.take_tick(k));
-        out.joint_command = t.joint_command.as_mut().and_then(|i| i.take_tick(k));
-        out.motor_command = t.motor_command.as_mut().and_then(|i| i.take_tick(k));
-        out.plant_state = t.plant_state.as_mut().and_then(|i| i.take_tick(k));
-        out.marker_set = t.marker_set.as_mut().and_then(|i| i.take_tick(k));
-        out.joint_estimate = t.joint_estimate.as_mut().and_then(|i| i.take_tick(k));
+        for (service, tap) in self.taps.iter_mut() {
+            if let Some(b) = tap.take(k) {
+                out.samples.push((service.clone(), b));
+            }
+        }
         self.tick += 1;
         Ok(out)
     }

@@ -2,13 +2,15 @@
 //! activation per call of [`Stage::step`]. One process hosts one stage (the default: every
 //! component is its own OS process) or several in a fixed order (`process = "..."` in the config).
 //!
-//! A stage is written once for both modes: it reads each input with
-//! `input.take(cx.lockstep, cx.tick)` (lockstep: the sample of this tick; real time: the newest),
-//! stamps outputs with [`StepCx::clock_ns`] (lockstep: simulated time, so runs are reproducible)
-//! and never blocks.
+//! A stage is written once for both modes and never names the mode: it reads each input with
+//! [`crate::ports::Input::next`], whose declared [`Read`] policy the runtime maps onto the mode
+//! (lockstep: the sample of this tick; real time: the newest), stamps outputs with
+//! [`StepCx::out_tick`] and [`StepCx::clock_ns`] (lockstep: simulated time, so runs are
+//! reproducible) and never blocks.
 
 use crate::config::{PipelineConfig, StageSpec};
-use crate::ports::{PortContext, PortError};
+use crate::node::{NodeKind, Read};
+use crate::ports::{FrameInput, FrameOutput, Input, Message, Output, PortContext, PortError};
 use crate::sys::monotonic_ns;
 
 /// `ComponentStatus::state` values.
@@ -20,33 +22,118 @@ pub mod state {
     pub const ESTOP: u32 = 4;
 }
 
-/// Context of one activation.
+/// Context of one activation: what a node may ask of the tick it runs in. The scheduling mode
+/// stays inside the runtime: inputs are read with their declared [`Read`] policy
+/// ([`crate::ports::Input::next`]), outputs are stamped with [`StepCx::out_tick`] and
+/// [`StepCx::clock_ns`], a simulation advances by [`StepCx::time_step_ns`]; a node that genuinely
+/// needs a policy (a time budget, waiting for a helper thread) asks [`StepCx::reproducible`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct StepCx {
-    pub lockstep: bool,
-    /// Lockstep: the tick being processed. Real time: the process's activation count (stages
-    /// forward the tick of the sample they process instead).
-    pub tick: u64,
-    /// Lockstep: simulated time of the tick. Real time: monotonic time at activation.
-    pub t_now_ns: u64,
-    /// Lockstep: simulated time step. Real time: the activation period (0 if event-driven).
-    pub dt_ns: u64,
-    /// Real time, periodic: the nominal release time of this activation (its deadline origin).
-    pub t_release_ns: u64,
+    reproducible: bool,
+    tick: u64,
+    t_now_ns: u64,
+    dt_ns: u64,
+    t_release_ns: u64,
 }
 
 impl StepCx {
+    /// A lockstep activation: tick `tick` at simulated time `t_sim_ns`, step `dt_ns`.
+    pub fn lockstep(tick: u64, t_sim_ns: u64, dt_ns: u64) -> Self {
+        Self {
+            reproducible: true,
+            tick,
+            t_now_ns: t_sim_ns,
+            dt_ns,
+            t_release_ns: t_sim_ns,
+        }
+    }
+
+    /// A real-time activation number `activation`, woken at monotonic `t_now_ns` for the
+    /// release `t_release_ns` of a period `period_ns` (0: event-driven).
+    pub fn realtime(activation: u64, t_now_ns: u64, period_ns: u64, t_release_ns: u64) -> Self {
+        Self {
+            reproducible: false,
+            tick: activation,
+            t_now_ns,
+            dt_ns: period_ns,
+            t_release_ns,
+        }
+    }
+
+    /// Is this run reproducible bit for bit (lockstep)? Then nothing may depend on wall time or
+    /// on the machine's speed: no time budget, and a helper thread's answer is waited for.
+    #[inline]
+    pub fn reproducible(&self) -> bool {
+        self.reproducible
+    }
+
+    /// The number of this activation: the clock tick in lockstep, the process's activation
+    /// count in real time. A source (a node without inputs) stamps its samples with it.
+    #[inline]
+    pub fn tick(&self) -> u64 {
+        self.tick
+    }
+
+    /// When this activation started: simulated time in lockstep, the monotonic clock at
+    /// wake-up in real time.
+    #[inline]
+    pub fn t_now_ns(&self) -> u64 {
+        self.t_now_ns
+    }
+
+    /// The nominal time step: the simulated step in lockstep, the period in real time (0 for
+    /// an event-driven process).
+    #[inline]
+    pub fn dt_ns(&self) -> u64 {
+        self.dt_ns
+    }
+
+    /// Periodic real time: the nominal release of this activation (its deadline origin).
+    #[inline]
+    pub fn t_release_ns(&self) -> u64 {
+        self.t_release_ns
+    }
+
     /// The time to stamp a new sample's `t_origin_ns` with: simulated in lockstep (reproducible),
-    /// the monotonic clock in real time.
+    /// the monotonic clock now in real time.
     #[inline]
     pub fn clock_ns(&self) -> u64 {
-        if self.lockstep {
+        if self.reproducible {
             self.t_now_ns
         } else {
             monotonic_ns()
         }
     }
+
+    /// The tick an output of this activation carries, given the tick of the newest input it
+    /// derives from: in lockstep every output of tick k belongs to k (also a hold sent without
+    /// a new input); in real time the input's tick is forwarded, so a sample can be traced to
+    /// the target it came from across processes.
+    #[inline]
+    pub fn out_tick(&self, input_tick: u64) -> u64 {
+        if self.reproducible {
+            self.tick
+        } else {
+            input_tick
+        }
+    }
+
+    /// How far a simulation advances in this activation, at `now_ns` (from [`Self::clock_ns`])
+    /// after the previous step at `t_prev_ns`: the tick's step in lockstep; in real time the
+    /// time that actually passed (at least 1 ns; the nominal step on the first activation),
+    /// so a simulated robot keeps pace with the wall clock even after a late wake-up.
+    #[inline]
+    pub fn time_step_ns(&self, now_ns: u64, t_prev_ns: Option<u64>) -> u64 {
+        if self.reproducible {
+            self.dt_ns
+        } else {
+            t_prev_ns.map(|t| now_ns.saturating_sub(t)).unwrap_or(self.dt_ns).max(1)
+        }
+    }
 }
+
+/// Queue depth of an input whose kind declares none (ports from parameters).
+const DEFAULT_INPUT_BUFFER: usize = 64;
 
 /// What one activation did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -122,14 +209,85 @@ pub trait Stage {
     }
 }
 
-/// What a stage factory gets to build a stage.
+/// What a node kind's constructor gets to build a stage.
 pub struct StageEnv<'a> {
     pub spec: &'a StageSpec,
+    /// The kind's declaration (ports, schedule).
+    pub kind: &'static NodeKind,
     pub pipeline: &'a PipelineConfig,
     pub ports: &'a PortContext,
 }
 
 impl StageEnv<'_> {
+    /// The stage's input on `service`, read with its declared [`Read`] policy; an undeclared
+    /// input is an error (the declaration is what the validator and the scheduler know).
+    pub fn input<T: Message>(&self, service: &str) -> Result<Input<T>, StageBuildError> {
+        let read = self.read_of(service)?;
+        let buffer = self.kind.input(service).map_or(DEFAULT_INPUT_BUFFER, |d| d.buffer);
+        Ok(self.ports.input::<T>(service, buffer)?.with_read(read))
+    }
+
+    /// The stage's frame input on `service` (always [`Read::Tick`]).
+    pub fn frame_input(&self, service: &str) -> Result<FrameInput, StageBuildError> {
+        self.read_of(service)?;
+        let buffer = self.kind.input(service).map_or(2, |d| d.buffer);
+        Ok(self.ports.frame_input(service, buffer)?)
+    }
+
+    /// The stage's output on `service`; an undeclared output is an error.
+    pub fn output<T: Message>(&self, service: &str) -> Result<Output<T>, StageBuildError> {
+        self.check_output(service)?;
+        Ok(self.ports.output::<T>(service)?)
+    }
+
+    /// The stage's frame output on `service`, for frames of up to `max_len` bytes.
+    pub fn frame_output(&self, service: &str, max_len: usize) -> Result<FrameOutput, StageBuildError> {
+        self.check_output(service)?;
+        Ok(self.ports.frame_output(service, max_len)?)
+    }
+
+    fn read_of(&self, service: &str) -> Result<Read, StageBuildError> {
+        self.spec
+            .reads
+            .iter()
+            .find(|(s, _)| s == service)
+            .map(|(_, r)| *r)
+            .ok_or_else(|| {
+                self.error(format!(
+                    "opens input `{service}`, which kind `{}` does not declare",
+                    self.kind.kind
+                ))
+            })
+    }
+
+    fn check_output(&self, service: &str) -> Result<(), StageBuildError> {
+        if self.spec.outputs.iter().any(|o| o == service) {
+            Ok(())
+        } else {
+            Err(self.error(format!(
+                "opens output `{service}`, which kind `{}` does not declare",
+                self.kind.kind
+            )))
+        }
+    }
+
+    /// Is a service of this pipeline produced by some stage? (A consumer may open an optional
+    /// path only when its producer exists, e.g. model updates.)
+    pub fn produced(&self, service: &str) -> bool {
+        self.pipeline.producer_of(service).is_some()
+    }
+
+    /// The robot description file of the pipeline (`[runtime] robot = "..."`), resolved
+    /// against the config's directory; `None` for the shipped robot.
+    pub fn robot_file(&self) -> Option<std::path::PathBuf> {
+        self.pipeline.runtime.robot.as_ref().map(|p| self.pipeline.resolve(p))
+    }
+
+    /// A path parameter resolved against the pipeline config's directory.
+    pub fn resolve(&self, p: impl AsRef<std::path::Path>) -> std::path::PathBuf {
+        self.pipeline.resolve(p)
+    }
+
     /// Deserialises the stage's `[node.params]` into `T` (`deny_unknown_fields` recommended),
     /// with errors naming the config, the stage and the field.
     pub fn params<T: serde::de::DeserializeOwned>(&self) -> Result<T, StageBuildError> {
@@ -144,7 +302,10 @@ impl StageEnv<'_> {
         })
     }
 
-    pub fn lockstep(&self) -> bool {
+    /// Will this stage run reproducibly bit for bit (lockstep)? For choices made once at
+    /// build time (no time budget, helper threads that are waited for); per activation, ask
+    /// [`StepCx::reproducible`].
+    pub fn reproducible(&self) -> bool {
         self.pipeline.lockstep()
     }
 
@@ -173,7 +334,3 @@ impl From<PortError> for StageBuildError {
         }
     }
 }
-
-/// Builds the stage of a kind. The root binary provides one covering every component crate;
-/// the recorder is built by the runtime itself.
-pub type StageFactory<'f> = dyn Fn(&StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> + 'f;

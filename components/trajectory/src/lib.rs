@@ -7,6 +7,7 @@
 //!   `configs/trajectories/*.toml`, through IK into joint space at the model step.
 
 pub mod dataset;
+pub mod node;
 pub mod task_space;
 
 pub use dataset::{

@@ -144,7 +144,7 @@ fn step_does_not_allocate() {
     }
 }
 
-/// The node's feedback cycle (src/nodes/compensator.rs) over `targets`, one per ms, with a
+/// The node's feedback cycle (components/compensator/src/node.rs) over `targets`, one per ms, with a
 /// camera frame every 33 ms arriving 66 ms later; frames are valid, NaN, invalid or partial in
 /// turn, and none arrive between 30 % and 60 % of the run (markers lost, then back).
 fn feedback_cycle(comp: &mut Compensator, fb: &mut Feedback, apply: ApplyTo, targets: &[[f64; 5]]) -> u64 {

@@ -9,11 +9,12 @@
 //! (docs/architecture.md, "Vision feedback"). In lockstep the estimate of tick k is read at
 //! tick k + 1 (the estimator runs after the compensator within a tick), deterministically.
 
-use bowden_compensator::{
+use crate::{
     ApplyTo, Compensator, ControllerConfig, Dither, Feedback, Loaded, LoaderSettings, Mode, ModelLoader, PrefixSync,
     PrefixWorkerOptions, StepOutput,
 };
 use bowden_interfaces::{services, JointCommand, JointEstimate, JointTarget, ModelUpdate, MAX_JOINTS};
+use bowden_runtime::node::{InputDecl, NodeKind, Read, Schedule};
 use bowden_runtime::ports::{Input, Output};
 use bowden_runtime::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
 use serde::Deserialize;
@@ -71,11 +72,32 @@ struct CompensatorStage {
     feedback_idle: bool,
 }
 
-pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
+/// The `compensator` node kind: its declared ports and schedule (see `bowden_runtime::node`).
+pub const KIND: NodeKind = NodeKind {
+    kind: "compensator",
+    summary: "targets → calibrated joint commands (Algorithm 1; optional vision feedback and model hot swap)",
+    inputs: &[
+        InputDecl::new(services::JOINT_TARGET, Read::Tick, 4),
+        InputDecl::new(services::JOINT_ESTIMATE, Read::Feedback, 8),
+        InputDecl::new(services::MODEL_UPDATE, Read::Feedback, 8),
+    ],
+    outputs: &[services::JOINT_COMMAND],
+    schedule: Schedule {
+        periodic: false,
+        period_us: None,
+        wake_timeout_us: None,
+        deadline_us: Some(500),
+    },
+    ports_from_params: None,
+    lockstep_refusal: None,
+    build,
+};
+
+fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
     let p: Params = env.params()?;
-    let robot = super::robot(env)?;
+    let robot = bowden_kinematics::Robot::load_or_paper(env.robot_file().as_deref()).map_err(|e| env.error(e))?;
     let mut cfg = match &p.config {
-        Some(path) => ControllerConfig::load(super::resolve(env, path)).map_err(|e| env.error(e))?,
+        Some(path) => ControllerConfig::load(env.resolve(path)).map_err(|e| env.error(e))?,
         None => ControllerConfig::shipped(),
     };
     if let Some(m) = &p.mode {
@@ -93,11 +115,11 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
     }
     let mut comp = Compensator::from_config(&cfg, &robot).map_err(|e| env.error(e))?;
     comp.set_period_ns(env.pipeline.period_ns());
-    if env.lockstep() {
+    if env.reproducible() {
         // A time budget would make results depend on the machine's speed.
         comp.set_budget_ns(0);
     }
-    if cfg.mode != Mode::Uncalibrated && p.prefix_worker.unwrap_or(!env.lockstep()) {
+    if cfg.mode != Mode::Uncalibrated && p.prefix_worker.unwrap_or(!env.reproducible()) {
         // The worker inherits this thread's placement (the process's real-time settings are
         // applied after the stages are built): it moves to the CPUs the process is not pinned
         // to, where it cannot delay the cycle, and stays under SCHED_OTHER.
@@ -117,7 +139,7 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
             }) as Box<dyn FnOnce() + Send>
         });
         comp.start_prefix_worker(PrefixWorkerOptions {
-            sync: if env.lockstep() {
+            sync: if env.reproducible() {
                 PrefixSync::Wait
             } else {
                 PrefixSync::Newest
@@ -132,21 +154,17 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
     let feedback = if applied {
         Some(FeedbackPath {
             fb: Feedback::new(fb_cfg, comp.joints(), env.pipeline.period_ns()),
-            estimates: env.ports.input(services::JOINT_ESTIMATE, 8)?,
+            estimates: env.input(services::JOINT_ESTIMATE)?,
             apply: fb_cfg.apply,
         })
     } else {
         None
     };
-    let announced = env
-        .pipeline
-        .stages
-        .iter()
-        .any(|s| s.outputs.iter().any(|o| o == services::MODEL_UPDATE));
+    let announced = env.produced(services::MODEL_UPDATE);
     let swap = if announced && cfg.mode != Mode::Uncalibrated {
         let settings = LoaderSettings::for_compensator(&comp, &cfg, &env.spec.name, true);
         Some(SwapPath {
-            updates: env.ports.input(services::MODEL_UPDATE, 8)?,
+            updates: env.input(services::MODEL_UPDATE)?,
             loader: ModelLoader::spawn(settings).map_err(|e| env.error(format!("model loader thread: {e}")))?,
             pending: 0,
             swapped: 0,
@@ -161,8 +179,8 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         comp,
         swap,
         dither,
-        input: env.ports.input(services::JOINT_TARGET, 4)?,
-        out: env.ports.output(services::JOINT_COMMAND)?,
+        input: env.input(services::JOINT_TARGET)?,
+        out: env.output(services::JOINT_COMMAND)?,
         step_out: StepOutput::default(),
         bad_size: 0,
         feedback,
@@ -177,14 +195,8 @@ impl CompensatorStage {
     /// the machine's speed. Allocation-free on this thread.
     fn swap_models(&mut self, cx: &StepCx) {
         let Some(sp) = self.swap.as_mut() else { return };
-        loop {
-            // Announcements of earlier ticks only: in lockstep `adapt` is not ordered before us.
-            let u = if cx.lockstep {
-                sp.updates.next_upto(cx.tick.saturating_sub(1))
-            } else {
-                sp.updates.recv()
-            };
-            let Some(u) = u else { break };
+        // Announcements of earlier ticks only (`Read::Feedback`): `adapt` is not ordered before us.
+        while let Some(u) = sp.updates.next(cx) {
             if sp.loader.request(&u) {
                 sp.pending += 1;
             } else {
@@ -192,13 +204,13 @@ impl CompensatorStage {
             }
         }
         while sp.pending > 0 {
-            let answer = if cx.lockstep {
+            let answer = if cx.reproducible() {
                 sp.loader.take_blocking(LOCKSTEP_LOAD_TIMEOUT)
             } else {
                 sp.loader.try_take()
             };
             let Some(answer) = answer else {
-                if cx.lockstep {
+                if cx.reproducible() {
                     // The loader did not answer in time: count it and go on with the models in use.
                     sp.pending = 0;
                     sp.refused += 1;
@@ -232,15 +244,9 @@ impl CompensatorStage {
         if usable {
             fp.fb.begin(t.header.tick, q, now);
         }
-        // Every estimate up to this tick, in arrival order (lockstep: exactly those of the
-        // ticks before; real time: whatever arrived since the last cycle).
-        loop {
-            let e = if cx.lockstep {
-                fp.estimates.next_upto(cx.tick)
-            } else {
-                fp.estimates.recv()
-            };
-            let Some(e) = e else { break };
+        // Every estimate of the ticks before, in arrival order (`Read::Feedback`; real time:
+        // whatever arrived since the last cycle).
+        while let Some(e) = fp.estimates.next(cx) {
             fp.fb.observe(&e, now);
         }
         if !usable {
@@ -280,7 +286,7 @@ impl CompensatorStage {
 
 impl Stage for CompensatorStage {
     fn step(&mut self, cx: &StepCx) -> Result<StepReport, StageError> {
-        let Some(t) = self.input.take(cx.lockstep, cx.tick) else {
+        let Some(t) = self.input.next(cx) else {
             return Ok(StepReport::IDLE);
         };
         let n = t.n_joints as usize;
@@ -306,7 +312,8 @@ impl Stage for CompensatorStage {
         }
         let mut cmd = JointCommand::default();
         self.step_out.fill_joint_command(&mut cmd);
-        if cx.lockstep {
+        if cx.reproducible() {
+            // The compute time is the machine's, not the run's: kept out of reproducible bytes.
             cmd.compute_ns = 0;
         }
         self.out.publish(t.header.tick, t.header.t_origin_ns, cmd)?;

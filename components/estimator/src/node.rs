@@ -1,9 +1,10 @@
 //! Estimator node: RGBD frame (read in place in shared memory) → `bowden_estimator::Estimator`
 //! → `MarkerSet` + `JointEstimate`. The motor command is the IK start, as in the paper.
 
-use bowden_estimator::{Estimator, EstimatorConfig};
+use crate::{Estimator, EstimatorConfig};
 use bowden_interfaces::{services, JointEstimate, MarkerSet, MotorCommand};
 use bowden_kinematics::markers::MarkerGeometry;
+use bowden_runtime::node::{InputDecl, NodeKind, Read, Schedule};
 use bowden_runtime::ports::{FrameInput, Input, Output};
 use bowden_runtime::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
 use serde::Deserialize;
@@ -29,12 +30,32 @@ struct EstimatorStage {
     estimates: u64,
 }
 
-pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
+/// The `estimator` node kind: its declared ports and schedule (see `bowden_runtime::node`).
+pub const KIND: NodeKind = NodeKind {
+    kind: "estimator",
+    summary: "RGBD frames → marker positions and joint estimates (HSV, RANSAC, frames, IK)",
+    inputs: &[
+        InputDecl::new(services::RGBD_FRAME, Read::Tick, 2),
+        InputDecl::new(services::MOTOR_COMMAND, Read::Hint, 8),
+    ],
+    outputs: &[services::MARKER_SET, services::JOINT_ESTIMATE],
+    schedule: Schedule {
+        periodic: false,
+        period_us: None,
+        wake_timeout_us: None,
+        deadline_us: None,
+    },
+    ports_from_params: None,
+    lockstep_refusal: None,
+    build,
+};
+
+fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
     let p: Params = env.params()?;
-    let robot = super::robot(env)?;
+    let robot = bowden_kinematics::Robot::load_or_paper(env.robot_file().as_deref()).map_err(|e| env.error(e))?;
     let (geometry, cfg) = match &p.markers {
         Some(f) => {
-            let path = super::resolve(env, f);
+            let path = env.resolve(f);
             (
                 MarkerGeometry::load(&path).map_err(|e| env.error(e))?,
                 EstimatorConfig::load(&path).map_err(|e| env.error(e))?,
@@ -44,10 +65,10 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
     };
     Ok(Box::new(EstimatorStage {
         est: Estimator::new(robot, geometry, cfg),
-        frames: env.ports.frame_input(services::RGBD_FRAME, 2)?,
-        hints: env.ports.input(services::MOTOR_COMMAND, 8)?,
-        markers_out: env.ports.output(services::MARKER_SET)?,
-        joints_out: env.ports.output(services::JOINT_ESTIMATE)?,
+        frames: env.frame_input(services::RGBD_FRAME)?,
+        hints: env.input(services::MOTOR_COMMAND)?,
+        markers_out: env.output(services::MARKER_SET)?,
+        joints_out: env.output(services::JOINT_ESTIMATE)?,
         hint: None,
         bad_frames: 0,
         invalid: 0,
@@ -57,12 +78,12 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
 
 impl Stage for EstimatorStage {
     fn step(&mut self, cx: &StepCx) -> Result<StepReport, StageError> {
-        if let Some(m) = self.hints.take(cx.lockstep, cx.tick) {
-            if let Some(q) = super::joints5(&m.q_cmd_deg, 5) {
+        if let Some(m) = self.hints.next(cx) {
+            if let Some(q) = bowden_interfaces::finite_joints::<5>(&m.q_cmd_deg, 5) {
                 self.hint = Some(q);
             }
         }
-        let Some(frame) = self.frames.take(cx.lockstep, cx.tick) else {
+        let Some(frame) = self.frames.next(cx) else {
             return Ok(StepReport::IDLE);
         };
         let h = *frame.user_header();

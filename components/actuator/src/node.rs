@@ -2,8 +2,9 @@
 //! e-stop) → `MotorCommand` through a [`Drive`]: here the IPC drive that feeds the plant process
 //! or an external motor-driver process alike.
 
-use bowden_actuator::{Actuator, ActuatorConfig, ActuatorState, Drive, DriveError};
+use crate::{Actuator, ActuatorConfig, ActuatorState, Drive, DriveError};
 use bowden_interfaces::{services, JointCommand, MotorCommand, SafetyCommand};
+use bowden_runtime::node::{InputDecl, NodeKind, Read, Schedule};
 use bowden_runtime::ports::{Input, Output};
 use bowden_runtime::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
 
@@ -36,19 +37,39 @@ struct ActuatorStage {
     last_tick: u64,
 }
 
-pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
+/// The `actuator` node kind: its declared ports and schedule (see `bowden_runtime::node`).
+pub const KIND: NodeKind = NodeKind {
+    kind: "actuator",
+    summary: "joint commands → motor setpoints through a drive (limits, rate limit, watchdog, e-stop)",
+    inputs: &[
+        InputDecl::new(services::JOINT_COMMAND, Read::Tick, 4),
+        InputDecl::new(services::SAFETY, Read::Side, 8),
+    ],
+    outputs: &[services::MOTOR_COMMAND],
+    schedule: Schedule {
+        periodic: false,
+        period_us: None,
+        wake_timeout_us: Some(5_000),
+        deadline_us: Some(1_000),
+    },
+    ports_from_params: None,
+    lockstep_refusal: None,
+    build,
+};
+
+fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
     let cfg: ActuatorConfig = env.params()?;
-    let robot = super::robot(env)?;
+    let robot = bowden_kinematics::Robot::load_or_paper(env.robot_file().as_deref()).map_err(|e| env.error(e))?;
     let origin = format!("{}: [node.params] of `{}`", env.pipeline.origin, env.spec.name);
     let act = Actuator::new(&robot, &cfg, &origin).map_err(|e| env.error(e))?;
     let mut drive: Box<dyn Drive> = Box::new(IpcDrive {
-        out: env.ports.output(services::MOTOR_COMMAND)?,
+        out: env.output(services::MOTOR_COMMAND)?,
     });
     drive.activate().map_err(|e| env.error(e))?;
     Ok(Box::new(ActuatorStage {
         act,
-        commands: env.ports.input(services::JOINT_COMMAND, 4)?,
-        safety: env.ports.input(services::SAFETY, 8)?,
+        commands: env.input(services::JOINT_COMMAND)?,
+        safety: env.input(services::SAFETY)?,
         drive,
         last_tick: 0,
     }))
@@ -68,10 +89,10 @@ impl ActuatorStage {
 impl Stage for ActuatorStage {
     fn step(&mut self, cx: &StepCx) -> Result<StepReport, StageError> {
         let now = cx.clock_ns();
-        while let Some(s) = self.safety.recv() {
+        while let Some(s) = self.safety.next(cx) {
             self.act.safety(&s, now);
         }
-        if let Some(c) = self.commands.take(cx.lockstep, cx.tick) {
+        if let Some(c) = self.commands.next(cx) {
             self.last_tick = c.header.tick;
             let r = self.act.command(&c.q_cmd_deg, c.n_joints, now);
             self.send(r.output.to_motor_command(), c.header.tick, c.header.t_origin_ns)?;
@@ -80,8 +101,7 @@ impl Stage for ActuatorStage {
         // No command this activation: the watchdog decides whether to (keep) hold(ing).
         match self.act.idle(now) {
             Some(hold) => {
-                let tick = if cx.lockstep { cx.tick } else { self.last_tick };
-                self.send(hold.to_motor_command(), tick, now)?;
+                self.send(hold.to_motor_command(), cx.out_tick(self.last_tick), now)?;
                 Ok(StepReport {
                     active: true,
                     t_origin_ns: None,

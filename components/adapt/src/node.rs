@@ -8,9 +8,10 @@
 //! command the plant held when the frame was taken); samples of tick k are read at tick k + 1,
 //! when they are certainly complete.
 
-use bowden_adapt::{AdaptConfig, Adapter, Decision, JobResult, SwapRecord};
+use crate::{AdaptConfig, Adapter, Decision, JobResult, SwapRecord};
 use bowden_compensator::ControllerConfig;
 use bowden_interfaces::{fnv1a64, services, JointCommand, JointEstimate, ModelUpdate, MAX_JOINTS};
+use bowden_runtime::node::{InputDecl, NodeKind, Read, Schedule};
 use bowden_runtime::ports::{Input, Output};
 use bowden_runtime::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
 use serde::Deserialize;
@@ -64,15 +65,35 @@ struct AdaptStage {
     name: String,
 }
 
-pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
+/// The `adapt` node kind: its declared ports and schedule (see `bowden_runtime::node`).
+pub const KIND: NodeKind = NodeKind {
+    kind: "adapt",
+    summary: "online adaptation: fine-tunes the models beside the chain and announces better ones",
+    inputs: &[
+        InputDecl::new(services::JOINT_COMMAND, Read::Feedback, 64),
+        InputDecl::new(services::JOINT_ESTIMATE, Read::Feedback, 64),
+    ],
+    outputs: &[services::MODEL_UPDATE],
+    schedule: Schedule {
+        periodic: true,
+        period_us: Some(20_000),
+        wake_timeout_us: None,
+        deadline_us: None,
+    },
+    ports_from_params: None,
+    lockstep_refusal: None,
+    build,
+};
+
+fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
     let p: Params = env.params()?;
     let cfg = match &p.config {
-        Some(f) => AdaptConfig::load(&super::resolve(env, f)).map_err(|e| env.error(e))?,
+        Some(f) => AdaptConfig::load(&env.resolve(f)).map_err(|e| env.error(e))?,
         None => AdaptConfig::default(),
     };
     // The controller: given, or the pipeline compensator's `config`, or the shipped one.
     let controller = match &p.controller {
-        Some(f) => Some(super::resolve(env, f)),
+        Some(f) => Some(env.resolve(f)),
         None => env
             .pipeline
             .stages
@@ -80,7 +101,7 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
             .find(|s| s.kind == "compensator")
             .and_then(|s| s.params.get("config"))
             .and_then(|v| v.as_str())
-            .map(|f| super::resolve(env, std::path::Path::new(f))),
+            .map(|f| env.resolve(std::path::Path::new(f))),
     };
     let ctl = match &controller {
         Some(f) => ControllerConfig::load(f).map_err(|e| env.error(e))?,
@@ -101,9 +122,9 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
     Ok(Box::new(AdaptStage {
         announce_at_start: adapter.current().is_some(),
         adapter,
-        commands: env.ports.input(services::JOINT_COMMAND, 64)?,
-        estimates: env.ports.input(services::JOINT_ESTIMATE, 64)?,
-        out: env.ports.output(services::MODEL_UPDATE)?,
+        commands: env.input(services::JOINT_COMMAND)?,
+        estimates: env.input(services::JOINT_ESTIMATE)?,
+        out: env.output(services::MODEL_UPDATE)?,
         recent: VecDeque::with_capacity(128),
         held: None,
         worker: None,
@@ -147,7 +168,7 @@ impl AdaptStage {
             self.failed_checks += 1;
             return Ok(());
         }
-        self.out.publish(cx.tick, cx.clock_ns(), u)?;
+        self.out.publish(cx.tick(), cx.clock_ns(), u)?;
         Ok(())
     }
 
@@ -169,9 +190,9 @@ impl AdaptStage {
     fn take_result(&mut self, r: JobResult, cx: &StepCx) -> Result<(), StageError> {
         let decision = r.record.decision;
         let message = r.record.message.clone();
-        match self.adapter.apply(r, cx.tick) {
+        match self.adapter.apply(r, cx.tick()) {
             Ok(swap) => {
-                eprintln!("{}: tick {}: check {:?}: {message}", self.name, cx.tick, decision);
+                eprintln!("{}: tick {}: check {:?}: {message}", self.name, cx.tick(), decision);
                 if decision == Decision::Failed {
                     self.failed_checks += 1;
                 }
@@ -189,7 +210,8 @@ impl AdaptStage {
                 self.failed_checks += 1;
                 eprintln!(
                     "{}: tick {}: the check's result could not be kept: {e}",
-                    self.name, cx.tick
+                    self.name,
+                    cx.tick()
                 );
             }
         }
@@ -204,29 +226,17 @@ impl Stage for AdaptStage {
             let g = self.adapter.generation();
             self.announce_whole(g, cx)?;
         }
-        // Samples of earlier ticks only: in lockstep this node is not ordered after the chain.
-        let upto = cx.tick.saturating_sub(1);
+        // Samples of earlier ticks only (`Read::Feedback`): this node is not ordered after the
+        // chain.
         let mut active = false;
-        loop {
-            let c = if cx.lockstep {
-                self.commands.next_upto(upto)
-            } else {
-                self.commands.recv()
-            };
-            let Some(c) = c else { break };
+        while let Some(c) = self.commands.next(cx) {
             if self.recent.len() == self.recent.capacity() {
                 self.recent.pop_front();
             }
             self.recent.push_back((c.header.tick, c));
         }
         let j = self.adapter.joints();
-        loop {
-            let e = if cx.lockstep {
-                self.estimates.next_upto(upto)
-            } else {
-                self.estimates.recv()
-            };
-            let Some(e) = e else { break };
+        while let Some(e) = self.estimates.next(cx) {
             active = true;
             let all = (1u32 << j) - 1;
             if e.quality != JointEstimate::QUALITY_VALID || e.n_joints as usize != j || e.joint_valid_mask & all != all
@@ -265,7 +275,8 @@ impl Stage for AdaptStage {
         }
         if self.worker.is_none() && self.adapter.due() {
             let job = self.adapter.job();
-            if cx.lockstep {
+            if cx.reproducible() {
+                // The whole pipeline waits for the check, so the run reproduces byte for byte.
                 let r = job.run();
                 self.take_result(r, cx)?;
             } else {
@@ -282,7 +293,7 @@ impl Stage for AdaptStage {
             }
             active = true;
         }
-        if self.drill_every_ticks > 0 && cx.tick > 0 && cx.tick.is_multiple_of(self.drill_every_ticks) {
+        if self.drill_every_ticks > 0 && cx.tick() > 0 && cx.tick().is_multiple_of(self.drill_every_ticks) {
             self.drill_generation += 1;
             let g = self.drill_generation;
             if self.adapter.current().is_some() {
@@ -359,7 +370,7 @@ impl AdaptStage {
         }
         let s = SwapRecord {
             generation,
-            tick: cx.tick,
+            tick: cx.tick(),
             dir,
             fwd_hash: hashes[0],
             inv_hash: hashes[1],

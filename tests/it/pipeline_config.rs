@@ -1,5 +1,7 @@
-//! Pipeline configs: the shipped ones load; bad ones fail with the file and field named.
+//! Pipeline configs with the binary's node kinds (`bowden::registry`): the shipped ones load;
+//! bad ones fail with the file and field named.
 
+use bowden::registry::REGISTRY;
 use bowden_runtime::config::{Activation, ConfigOrigin, Mode, Overrides, PipelineConfig};
 use std::path::PathBuf;
 
@@ -9,6 +11,7 @@ fn parse(text: &str) -> Result<PipelineConfig, String> {
         ConfigOrigin::File(PathBuf::from("test.toml")),
         PathBuf::from("."),
         &Overrides::default(),
+        REGISTRY,
     )
     .map_err(|e| e.to_string())
 }
@@ -18,7 +21,7 @@ const RT_HEAD: &str = "[runtime]\nmode = \"realtime\"\nperiod_us = 1000\n";
 
 #[test]
 fn shipped_configs_load() {
-    let sim = PipelineConfig::embedded_sim(&Overrides::default()).expect("embedded sim.toml");
+    let sim = PipelineConfig::embedded_sim(&Overrides::default(), REGISTRY).expect("embedded sim.toml");
     assert_eq!(sim.mode(), Mode::Realtime);
     let names: Vec<&str> = sim.stages.iter().map(|s| s.name.as_str()).collect();
     assert!(
@@ -27,9 +30,9 @@ fn shipped_configs_load() {
     );
     // The recorder is off unless asked for.
     assert!(!names.contains(&"recorder"));
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs");
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs");
     for f in ["sim.toml", "cycle.toml"] {
-        PipelineConfig::load(&root.join(f), &Overrides::default()).unwrap_or_else(|e| panic!("{f}: {e}"));
+        PipelineConfig::load(&root.join(f), &Overrides::default(), REGISTRY).unwrap_or_else(|e| panic!("{f}: {e}"));
     }
 }
 
@@ -41,7 +44,7 @@ fn overrides_apply() {
         record_path: Some("x.blog".into()),
         ..Default::default()
     };
-    let c = PipelineConfig::embedded_sim(&ov).unwrap();
+    let c = PipelineConfig::embedded_sim(&ov, REGISTRY).unwrap();
     assert!(c.lockstep());
     assert_eq!(c.ipc().prefix, "zz_");
     let rec = c.stage("recorder").expect("--record enables the recorder");

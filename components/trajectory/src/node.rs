@@ -2,6 +2,7 @@
 //! dataset commands (`bowden_trajectory`) or a CSV file, each command held `pause_s`.
 
 use bowden_interfaces::{services, JointTarget};
+use bowden_runtime::node::{NodeKind, Schedule};
 use bowden_runtime::ports::Output;
 use bowden_runtime::stage::{Stage, StageBuildError, StageEnv, StageError, StepCx, StepReport};
 use bowden_tables::{Location, ReadOptions, Table, TableError};
@@ -88,9 +89,26 @@ struct TrajectoryStage {
     out: Output<JointTarget>,
 }
 
-pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
+/// The `trajectory` node kind: its declared ports and schedule (see `bowden_runtime::node`).
+pub const KIND: NodeKind = NodeKind {
+    kind: "trajectory",
+    summary: "the targets q_desired: the dataset commands of eq. (16) or a CSV path",
+    inputs: &[],
+    outputs: &[services::JOINT_TARGET],
+    schedule: Schedule {
+        periodic: true,
+        period_us: None,
+        wake_timeout_us: None,
+        deadline_us: Some(200),
+    },
+    ports_from_params: None,
+    lockstep_refusal: None,
+    build,
+};
+
+fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
     let p: Params = env.params()?;
-    let robot = super::robot(env)?;
+    let robot = bowden_kinematics::Robot::load_or_paper(env.robot_file().as_deref()).map_err(|e| env.error(e))?;
     let (commands, pause_s, repeat) = match p {
         Params::Dataset {
             samples,
@@ -100,11 +118,11 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
             if samples < 2 {
                 return Err(env.error("params.samples: at least 2 configurations"));
             }
-            let c = bowden_trajectory::dataset_commands(&robot, samples, env.pipeline.runtime.seed);
+            let c = crate::dataset_commands(&robot, samples, env.pipeline.runtime.seed);
             (c, pause_s, repeat)
         }
         Params::Csv { file, pause_s, repeat } => {
-            let c = read_csv(&super::resolve(env, &file)).map_err(|e| env.error(e.to_string()))?;
+            let c = read_csv(&env.resolve(&file)).map_err(|e| env.error(e.to_string()))?;
             for (i, q) in c.iter().enumerate() {
                 robot
                     .check_limits(q)
@@ -120,13 +138,13 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         commands,
         hold_ns: (pause_s * 1e9) as u64,
         repeat,
-        out: env.ports.output(services::JOINT_TARGET)?,
+        out: env.output(services::JOINT_TARGET)?,
     }))
 }
 
 impl Stage for TrajectoryStage {
     fn step(&mut self, cx: &StepCx) -> Result<StepReport, StageError> {
-        let t_ns = cx.tick.saturating_mul(cx.dt_ns);
+        let t_ns = cx.tick().saturating_mul(cx.dt_ns());
         let n = self.commands.len() as u64;
         let mut idx = t_ns / self.hold_ns.max(1);
         let mut flags = 0;
@@ -147,8 +165,8 @@ impl Stage for TrajectoryStage {
         // The target comes into existence now: the wake-up time (real time; the wake-up's
         // lateness after the release is the scheduler's, reported as this stage's response
         // time) or the tick's simulated time (lockstep).
-        let origin = cx.t_now_ns;
-        self.out.publish(cx.tick, origin, target)?;
+        let origin = cx.t_now_ns();
+        self.out.publish(cx.tick(), origin, target)?;
         Ok(StepReport::published(origin))
     }
 }

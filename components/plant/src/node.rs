@@ -1,10 +1,11 @@
 //! Plant node: `MotorCommand` → `bowden_plant::Plant` (the simulated tendon-sheath manipulator)
-//! → `PlantState`, the ground truth the camera renders. Steps every tick (lockstep) or every
-//! period (real time, with the elapsed time as step), holding the last valid command.
+//! → `PlantState`, the ground truth the camera renders. Steps every activation by
+//! [`StepCx::time_step_ns`], holding the last valid command.
 
+use crate::{Plant, PlantConfig};
 use bowden_interfaces::{services, MotorCommand, PlantState};
 use bowden_kinematics::N_CABLES;
-use bowden_plant::{Plant, PlantConfig};
+use bowden_runtime::node::{InputDecl, NodeKind, Read, Schedule};
 use bowden_runtime::ports::{Input, Output};
 use bowden_runtime::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
 use serde::Deserialize;
@@ -51,11 +52,28 @@ struct PlantStage {
     first_error: Option<String>,
 }
 
-pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
+/// The `plant` node kind: its declared ports and schedule (see `bowden_runtime::node`).
+pub const KIND: NodeKind = NodeKind {
+    kind: "plant",
+    summary: "the simulated tendon-sheath manipulator: motor setpoints → true joint angles",
+    inputs: &[InputDecl::new(services::MOTOR_COMMAND, Read::Tick, 4)],
+    outputs: &[services::PLANT_STATE],
+    schedule: Schedule {
+        periodic: true,
+        period_us: None,
+        wake_timeout_us: None,
+        deadline_us: None,
+    },
+    ports_from_params: None,
+    lockstep_refusal: None,
+    build,
+};
+
+fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
     let p: Params = env.params()?;
-    let robot = super::robot(env)?;
+    let robot = bowden_kinematics::Robot::load_or_paper(env.robot_file().as_deref()).map_err(|e| env.error(e))?;
     let cfg = match &p.config {
-        Some(f) => PlantConfig::load(super::resolve(env, f)).map_err(|e| env.error(e))?,
+        Some(f) => PlantConfig::load(env.resolve(f)).map_err(|e| env.error(e))?,
         None => PlantConfig::paper_default(),
     };
     let run_seed = env.pipeline.runtime.seed;
@@ -69,8 +87,8 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
     let w_mm = robot.cables().displacements_mm(&[0.0; 5]);
     Ok(Box::new(PlantStage {
         plant,
-        input: env.ports.input(services::MOTOR_COMMAND, 4)?,
-        out: env.ports.output(services::PLANT_STATE)?,
+        input: env.input(services::MOTOR_COMMAND)?,
+        out: env.output(services::PLANT_STATE)?,
         w_mm,
         last_tick: 0,
         t_prev_ns: None,
@@ -82,7 +100,7 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
 
 impl Stage for PlantStage {
     fn step(&mut self, cx: &StepCx) -> Result<StepReport, StageError> {
-        if let Some(m) = self.input.take(cx.lockstep, cx.tick) {
+        if let Some(m) = self.input.next(cx) {
             let w: [f64; N_CABLES] = core::array::from_fn(|i| m.cable_disp_mm[i]);
             if m.n_cables as usize == N_CABLES && w.iter().all(|v| v.is_finite()) {
                 self.w_mm = w;
@@ -92,13 +110,7 @@ impl Stage for PlantStage {
             }
         }
         let now = cx.clock_ns();
-        let dt_ns = if cx.lockstep {
-            cx.dt_ns
-        } else {
-            // Real time: simulate the time that actually passed, so the robot keeps pace with
-            // the wall clock even after a late wake-up.
-            self.t_prev_ns.map(|t| now.saturating_sub(t)).unwrap_or(cx.dt_ns).max(1)
-        };
+        let dt_ns = cx.time_step_ns(now, self.t_prev_ns);
         self.t_prev_ns = Some(now);
         if let Err(e) = self.plant.step(&self.w_mm, dt_ns as f64 * 1e-9) {
             // An out-of-range cable command leaves the plant as it was: count it and go on.
@@ -107,9 +119,7 @@ impl Stage for PlantStage {
         }
         let mut s = PlantState::default();
         self.plant.fill_state(&mut s);
-        let tick = if cx.lockstep { cx.tick } else { self.last_tick };
-        let origin = if cx.lockstep { cx.t_now_ns } else { now };
-        self.out.publish(tick, origin, s)?;
+        self.out.publish(cx.out_tick(self.last_tick), now, s)?;
         Ok(StepReport {
             active: true,
             t_origin_ns: None,

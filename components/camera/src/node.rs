@@ -1,9 +1,10 @@
 //! Camera node: renders the plant's true q (`PlantState`) with `bowden_camera::SyntheticCamera`
 //! straight into a loaned shared-memory frame (zero copy) at `fps`.
 
-use bowden_camera::{CameraConfig, SyntheticCamera};
+use crate::{CameraConfig, SyntheticCamera};
 use bowden_interfaces::{services, PlantState, RgbdFrameHeader};
 use bowden_kinematics::markers::MarkerGeometry;
+use bowden_runtime::node::{InputDecl, NodeKind, Read, Schedule};
 use bowden_runtime::ports::{FrameOutput, Input};
 use bowden_runtime::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
 use serde::Deserialize;
@@ -40,25 +41,42 @@ struct CameraStage {
     render_errors: u64,
 }
 
-pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
+/// The `camera` node kind: its declared ports and schedule (see `bowden_runtime::node`).
+pub const KIND: NodeKind = NodeKind {
+    kind: "camera",
+    summary: "the synthetic RGBD camera: true joint angles → colour + depth frames",
+    inputs: &[InputDecl::new(services::PLANT_STATE, Read::Tick, 4)],
+    outputs: &[services::RGBD_FRAME],
+    schedule: Schedule {
+        periodic: true,
+        period_us: None,
+        wake_timeout_us: None,
+        deadline_us: None,
+    },
+    ports_from_params: None,
+    lockstep_refusal: None,
+    build,
+};
+
+fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
     let p: Params = env.params()?;
     if !(p.fps.is_finite() && p.fps > 0.0 && p.fps <= 1000.0) {
         return Err(env.error(format!("params.fps must be in (0, 1000], got {}", p.fps)));
     }
-    let robot = super::robot(env)?;
+    let robot = bowden_kinematics::Robot::load_or_paper(env.robot_file().as_deref()).map_err(|e| env.error(e))?;
     let cfg = match &p.config {
-        Some(f) => CameraConfig::load(super::resolve(env, f)).map_err(|e| env.error(e))?,
+        Some(f) => CameraConfig::load(env.resolve(f)).map_err(|e| env.error(e))?,
         None => CameraConfig::paper_default(),
     };
     let markers = match &p.markers {
-        Some(f) => MarkerGeometry::load(super::resolve(env, f)).map_err(|e| env.error(e))?,
+        Some(f) => MarkerGeometry::load(env.resolve(f)).map_err(|e| env.error(e))?,
         None => MarkerGeometry::paper_default(),
     };
     let cam = SyntheticCamera::new(robot, markers, cfg, env.pipeline.runtime.seed);
     let len = cam.payload_len();
     Ok(Box::new(CameraStage {
-        out: env.ports.frame_output(services::RGBD_FRAME, len)?,
-        input: env.ports.input(services::PLANT_STATE, 4)?,
+        out: env.frame_output(services::RGBD_FRAME, len)?,
+        input: env.input(services::PLANT_STATE)?,
         cam,
         frame_period_ns: (1e9 / p.fps) as u64,
         next_frame_ns: None,
@@ -72,8 +90,8 @@ pub fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
 
 impl Stage for CameraStage {
     fn step(&mut self, cx: &StepCx) -> Result<StepReport, StageError> {
-        if let Some(s) = self.input.take(cx.lockstep, cx.tick) {
-            match super::joints5(&s.q_phy_deg, s.n_joints) {
+        if let Some(s) = self.input.next(cx) {
+            match bowden_interfaces::finite_joints::<5>(&s.q_phy_deg, s.n_joints) {
                 Some(q) => {
                     self.q = Some(q);
                     self.state_tick = s.header.tick;
@@ -89,7 +107,7 @@ impl Stage for CameraStage {
         // The next exposure on the frame grid; after a stall, rejoin it rather than burst.
         let next = self.next_frame_ns.unwrap_or(t) + self.frame_period_ns;
         self.next_frame_ns = Some(if next <= t { t + self.frame_period_ns } else { next });
-        let tick = if cx.lockstep { cx.tick } else { self.state_tick };
+        let tick = cx.out_tick(self.state_tick);
         let len = self.cam.payload_len();
         let (cam, frames) = (&mut self.cam, self.frames);
         let sent = self.out.publish_with(tick, t, len, |h: &mut RgbdFrameHeader, buf| {
