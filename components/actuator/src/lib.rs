@@ -717,3 +717,4 @@ mod tests {
     }
 }
 pub mod node;
+pub mod serial;

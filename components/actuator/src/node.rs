@@ -1,12 +1,18 @@
 //! Actuator node: `JointCommand` → `bowden_actuator::Actuator` (limits, rate limit, watchdog,
-//! e-stop) → `MotorCommand` through a [`Drive`]: here the IPC drive that feeds the plant process
-//! or an external motor-driver process alike.
+//! e-stop) → `MotorCommand` through its [`Drive`]s, chosen in the pipeline file
+//! (`[node.params] drive`): `"ipc"` (the default) publishes the setpoints on
+//! `bowden/motor_command` for the plant process or an external motor-driver process;
+//! `{ serial = "/dev/ttyUSB0" }` also writes them to a motor controller on a serial line
+//! ([`crate::serial`]), and still publishes them (for the recorder, the estimator's IK start and
+//! monitoring), after the controller took them.
 
+use crate::serial::SerialLineDrive;
 use crate::{Actuator, ActuatorConfig, ActuatorState, Drive, DriveError};
 use bowden_interfaces::{services, JointCommand, MotorCommand, SafetyCommand};
 use bowden_runtime::node::{InputDecl, NodeKind, Read, Schedule};
 use bowden_runtime::ports::{Input, Output};
 use bowden_runtime::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
+use serde::Deserialize;
 
 /// Publishes setpoints on `bowden/motor_command` for whichever process drives the motors.
 pub struct IpcDrive {
@@ -29,11 +35,29 @@ impl Drive for IpcDrive {
     }
 }
 
+/// `[node.params] drive`: where setpoints go besides the IPC service.
+#[derive(Debug, serde::Deserialize)]
+#[serde(
+    untagged,
+    expecting = "expected `drive = \"ipc\"` or `drive = { serial = \"/dev/ttyUSB0\" }`"
+)]
+enum DriveParam {
+    Name(DriveName),
+    Serial { serial: std::path::PathBuf },
+}
+
+#[derive(Debug, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+enum DriveName {
+    Ipc,
+}
+
 struct ActuatorStage {
     act: Actuator,
     commands: Input<JointCommand>,
     safety: Input<SafetyCommand>,
-    drive: Box<dyn Drive>,
+    /// In write order: the hardware drive (if any), then the IPC drive.
+    drives: Vec<Box<dyn Drive>>,
     last_tick: u64,
 }
 
@@ -58,19 +82,42 @@ pub const KIND: NodeKind = NodeKind {
 };
 
 fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
-    let cfg: ActuatorConfig = env.params()?;
+    // `drive` is the node's; every other parameter is the actuator's settings.
+    let mut params = env.spec.params.clone();
+    let drive_param = params.remove("drive");
+    let bad = |what: &str, e: toml::de::Error| {
+        env.error(format!(
+            "{}: [node.params] of `{}`: {what}{}",
+            env.pipeline.origin,
+            env.spec.name,
+            e.to_string().replace('\n', " ")
+        ))
+    };
+    let cfg = ActuatorConfig::deserialize(toml::Value::Table(params)).map_err(|e| bad("", e))?;
+    let drive_param = match drive_param {
+        Some(v) => DriveParam::deserialize(v).map_err(|e| bad("drive: ", e))?,
+        None => DriveParam::Name(DriveName::Ipc),
+    };
     let robot = bowden_kinematics::Robot::load_or_paper(env.robot_file().as_deref()).map_err(|e| env.error(e))?;
     let origin = format!("{}: [node.params] of `{}`", env.pipeline.origin, env.spec.name);
     let act = Actuator::new(&robot, &cfg, &origin).map_err(|e| env.error(e))?;
-    let mut drive: Box<dyn Drive> = Box::new(IpcDrive {
+    let mut drives: Vec<Box<dyn Drive>> = Vec::with_capacity(2);
+    if let DriveParam::Serial { serial } = &drive_param {
+        drives.push(Box::new(
+            SerialLineDrive::open(env.resolve(serial)).map_err(|e| env.error(e))?,
+        ));
+    }
+    drives.push(Box::new(IpcDrive {
         out: env.output(services::MOTOR_COMMAND)?,
-    });
-    drive.activate().map_err(|e| env.error(e))?;
+    }));
+    for d in drives.iter_mut() {
+        d.activate().map_err(|e| env.error(e))?;
+    }
     Ok(Box::new(ActuatorStage {
         act,
         commands: env.input(services::JOINT_COMMAND)?,
         safety: env.input(services::SAFETY)?,
-        drive,
+        drives,
         last_tick: 0,
     }))
 }
@@ -79,10 +126,13 @@ impl ActuatorStage {
     fn send(&mut self, mut m: MotorCommand, tick: u64, origin: u64) -> Result<(), StageError> {
         m.header.tick = tick;
         m.header.t_origin_ns = origin;
-        self.drive.write(&m).map_err(|e| StageError::Fatal {
-            stage: "actuator".into(),
-            message: e.to_string(),
-        })
+        for d in self.drives.iter_mut() {
+            d.write(&m).map_err(|e| StageError::Fatal {
+                stage: "actuator".into(),
+                message: e.to_string(),
+            })?;
+        }
+        Ok(())
     }
 }
 
@@ -122,10 +172,17 @@ impl Stage for ActuatorStage {
     }
 
     fn finish(&mut self) -> Result<(), StageError> {
-        self.drive.deactivate().map_err(|e| StageError::Fatal {
-            stage: "actuator".into(),
-            message: e.to_string(),
-        })
+        // Every drive is told to hold, even when one of them fails; the first error is kept.
+        let mut first = None;
+        for d in self.drives.iter_mut() {
+            if let Err(e) = d.deactivate() {
+                first.get_or_insert(StageError::Fatal {
+                    stage: "actuator".into(),
+                    message: e.to_string(),
+                });
+            }
+        }
+        first.map_or(Ok(()), Err)
     }
 
     fn summary(&self) -> Vec<String> {

@@ -43,8 +43,10 @@ pub mod node;
 pub mod noise;
 pub mod pngio;
 pub mod record;
+pub mod source;
 
 pub use camera::{label, SyntheticCamera};
 pub use config::{AppearanceConfig, BackgroundConfig, CameraConfig, ColorConfig, DepthConfig, Intrinsics, PoseConfig};
 pub use error::CameraError;
 pub use record::{FrameEntry, Recorder, RecordingIndex, ReplaySource, StreamInfo};
+pub use source::{FrameSource, RecordedFrames};

@@ -1,7 +1,8 @@
-//! Camera node: renders the plant's true q (`PlantState`) with `bowden_camera::SyntheticCamera`
-//! straight into a loaned shared-memory frame (zero copy) at `fps`.
+//! Camera node: fills a loaned shared-memory frame (zero copy) at `fps` from its
+//! [`FrameSource`]: the synthetic renderer of the plant's true q (`PlantState`), or frames
+//! recorded from a camera (`source = "recorded"`). Optionally records what it sends.
 
-use crate::{CameraConfig, SyntheticCamera};
+use crate::{CameraConfig, CameraError, FrameSource, RecordedFrames, Recorder, SyntheticCamera};
 use bowden_interfaces::{services, PlantState, RgbdFrameHeader};
 use bowden_kinematics::markers::MarkerGeometry;
 use bowden_runtime::node::{InputDecl, NodeKind, Read, Schedule};
@@ -13,6 +14,22 @@ use std::path::PathBuf;
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct Params {
+    /// Where frames come from: `synthetic` (the renderer, the default) or `recorded` (the
+    /// directory `frames`, in the layout `bowden` records: index.json + colour and 16-bit
+    /// depth PNGs).
+    #[serde(default)]
+    source: SourceKind,
+    /// `source = "recorded"`: the recording directory (relative to the pipeline file).
+    #[serde(default)]
+    frames: Option<PathBuf>,
+    /// `source = "recorded"`: start again at the first frame after the last (else the camera
+    /// stops sending, and reports itself degraded).
+    #[serde(default)]
+    loop_frames: bool,
+    /// Also write every frame sent to this directory, in the same layout (a recording a later
+    /// run can replay with `source = "recorded"`).
+    #[serde(default)]
+    record_to: Option<PathBuf>,
     /// Camera file (configs/camera.toml layout); the shipped D435-like camera when absent.
     #[serde(default)]
     config: Option<PathBuf>,
@@ -24,12 +41,21 @@ struct Params {
     fps: f64,
 }
 
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+enum SourceKind {
+    #[default]
+    Synthetic,
+    Recorded,
+}
+
 fn thirty() -> f64 {
     30.0
 }
 
 struct CameraStage {
-    cam: SyntheticCamera,
+    source: Box<dyn FrameSource>,
+    recorder: Option<Recorder>,
     input: Input<PlantState>,
     out: FrameOutput,
     frame_period_ns: u64,
@@ -39,6 +65,8 @@ struct CameraStage {
     frames: u64,
     rejected: u64,
     render_errors: u64,
+    record_errors: u64,
+    first_error: Option<String>,
 }
 
 /// The `camera` node kind: its declared ports and schedule (see `bowden_runtime::node`).
@@ -72,12 +100,30 @@ fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         Some(f) => MarkerGeometry::load(env.resolve(f)).map_err(|e| env.error(e))?,
         None => MarkerGeometry::paper_default(),
     };
-    let cam = SyntheticCamera::new(robot, markers, cfg, env.pipeline.runtime.seed);
-    let len = cam.payload_len();
+    let source: Box<dyn FrameSource> = match p.source {
+        SourceKind::Synthetic => Box::new(SyntheticCamera::new(robot, markers, cfg, env.pipeline.runtime.seed)),
+        SourceKind::Recorded => {
+            let dir = p
+                .frames
+                .as_ref()
+                .ok_or_else(|| env.error("params.frames: `source = \"recorded\"` needs the recording directory"))?;
+            let rec = RecordedFrames::open(env.resolve(dir), p.loop_frames).map_err(|e| env.error(e))?;
+            if rec.is_empty() {
+                return Err(env.error(format!("params.frames: {} holds no frames", dir.display())));
+            }
+            Box::new(rec)
+        }
+    };
+    let len = source.payload_len();
+    let recorder = match &p.record_to {
+        Some(dir) => Some(Recorder::create(env.resolve(dir), source.stream()).map_err(|e| env.error(e))?),
+        None => None,
+    };
     Ok(Box::new(CameraStage {
         out: env.frame_output(services::RGBD_FRAME, len)?,
         input: env.input(services::PLANT_STATE)?,
-        cam,
+        source,
+        recorder,
         frame_period_ns: (1e9 / p.fps) as u64,
         next_frame_ns: None,
         q: None,
@@ -85,6 +131,8 @@ fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         frames: 0,
         rejected: 0,
         render_errors: 0,
+        record_errors: 0,
+        first_error: None,
     }))
 }
 
@@ -103,24 +151,44 @@ impl Stage for CameraStage {
         if self.next_frame_ns.is_some_and(|n| t < n) {
             return Ok(StepReport::IDLE);
         }
-        let Some(q) = self.q else { return Ok(StepReport::IDLE) };
+        if (self.source.needs_state() && self.q.is_none()) || !self.source.has_frame(self.frames) {
+            return Ok(StepReport::IDLE);
+        }
         // The next exposure on the frame grid; after a stall, rejoin it rather than burst.
         let next = self.next_frame_ns.unwrap_or(t) + self.frame_period_ns;
         self.next_frame_ns = Some(if next <= t { t + self.frame_period_ns } else { next });
         let tick = cx.out_tick(self.state_tick);
-        let len = self.cam.payload_len();
-        let (cam, frames) = (&mut self.cam, self.frames);
+        let len = self.source.payload_len();
+        let (source, frames, q) = (&mut self.source, self.frames, self.q);
+        let recorder = &mut self.recorder;
+        let mut record_error = None;
         let sent = self.out.publish_with(tick, t, len, |h: &mut RgbdFrameHeader, buf| {
-            *h = cam.header(frames, tick, t);
-            cam.render_into_payload(&q, frames, buf)
+            source.fill(frames, q.as_ref(), h, buf)?;
+            if let Some(rec) = recorder.as_mut() {
+                let mut stamped = *h;
+                stamped.header = bowden_interfaces::SampleHeader {
+                    seq: frames,
+                    tick,
+                    t_origin_ns: t,
+                };
+                stamped.payload_len = len as u64;
+                // A failed write (full disk) loses the recording, never the frame.
+                record_error = rec.record_payload(&stamped, buf).err();
+            }
+            Ok::<(), CameraError>(())
         })?;
+        if let Some(e) = record_error {
+            self.record_errors += 1;
+            self.first_error.get_or_insert_with(|| e.to_string());
+        }
         match sent {
             Ok(_) => {
                 self.frames += 1;
                 Ok(StepReport::published(t))
             }
-            Err(_) => {
+            Err(e) => {
                 self.render_errors += 1;
+                self.first_error.get_or_insert_with(|| e.to_string());
                 Ok(StepReport::IDLE)
             }
         }
@@ -129,20 +197,41 @@ impl Stage for CameraStage {
     fn counters(&self) -> StageCounters {
         StageCounters {
             rejected: self.rejected,
-            faults: self.render_errors,
-            degraded: self.q.is_none(),
+            faults: self.render_errors + self.record_errors,
+            degraded: (self.source.needs_state() && self.q.is_none()) || !self.source.has_frame(self.frames),
             estop: false,
         }
     }
 
     fn summary(&self) -> Vec<String> {
-        vec![format!(
-            "camera: {} frames of {}x{}, rejected plant states {}, render errors {}",
+        let mut v = vec![format!(
+            "camera: {} frames ({}), rejected plant states {}, render errors {}",
             self.frames,
-            self.cam.width(),
-            self.cam.height(),
+            self.source.name(),
             self.rejected,
             self.render_errors
-        )]
+        )];
+        if let Some(r) = &self.recorder {
+            v.push(format!(
+                "camera: recorded {} frames to {} (write errors {})",
+                r.len(),
+                r.dir().display(),
+                self.record_errors
+            ));
+        }
+        if let Some(e) = &self.first_error {
+            v.push(format!("camera: first error: {e}"));
+        }
+        v
+    }
+
+    fn finish(&mut self) -> Result<(), StageError> {
+        if let Some(r) = self.recorder.as_ref() {
+            r.write_index().map_err(|e| StageError::Fatal {
+                stage: "camera".into(),
+                message: e.to_string(),
+            })?;
+        }
+        Ok(())
     }
 }

@@ -1,199 +1,50 @@
-//! The fused kernels against candle's autograd: same outputs, same gradients, for every
-//! architecture and both TCN block variants.
+//! The fused kernels against candle's autograd, live (`--features candle`), and the writer of
+//! the stored references the default build holds them to (`reference.rs`).
+#![cfg(feature = "candle")]
 
-use bowden_learning::arch::{Architecture, ModelSpec, TcnBlock};
+use crate::kernels_vs_reference::{assert_matches, fused};
+use crate::reference::{self, Case, Reference};
 use bowden_learning::candle_ref::CandleModel;
-use bowden_learning::kernels::Net;
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 
-fn random(n: usize, scale: f32, rng: &mut ChaCha8Rng) -> Vec<f32> {
-    (0..n).map(|_| rng.random_range(-scale..scale)).collect()
-}
-
-fn check(spec: ModelSpec, b: usize, seed: u64) {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let params = spec.init_params(seed);
-    let x = random(b * spec.seq_len * spec.joints, 1.5, &mut rng);
-    let y = random(b * spec.joints, 1.0, &mut rng);
-
-    let net = Net::new(spec);
-    let prep = net.prepared(&params);
-    let mut ws = net.workspace(b);
-    let mut out = vec![0.0; b * spec.joints];
-    net.forward(&params, &prep, &x, b, &mut ws, &mut out);
-    let mut grad = vec![0.0; net.param_count()];
-    let scale = 2.0 / (b * spec.joints) as f32;
-    let sse = net.forward_backward(&params, &prep, &x, &y, b, scale, &mut ws, &mut grad);
-
-    let mut cm = CandleModel::from_params(spec, &params).unwrap();
-    if spec.arch.has_tcn() {
-        // candle's own conv1d (pad_with_zeros + padding 0) gives the same forward pass.
+fn candle(c: &Case) -> Reference {
+    let (params, x, y) = reference::inputs(c);
+    let mut cm = CandleModel::from_params(c.spec, &params).unwrap();
+    let conv1d_out = c.spec.arch.has_tcn().then(|| {
         cm.conv1d_op = true;
-        let via_conv1d = cm.predict(&x, b).unwrap();
+        let o = cm.predict(&x, c.b).unwrap();
         cm.conv1d_op = false;
-        let err = out
-            .iter()
-            .zip(&via_conv1d)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0f32, f32::max);
-        assert!(err < 2e-5, "conv1d forward differs by {err}");
-    }
-    let want_out = cm.predict(&x, b).unwrap();
-    let (want_loss, want_grad) = cm.loss_and_grads(&x, &y, b).unwrap();
-
-    let tag = format!("{} {} L={}", spec.arch, spec.tcn_block, spec.seq_len);
-    let out_err = out
-        .iter()
-        .zip(&want_out)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0f32, f32::max);
-    assert!(out_err < 2e-5, "{tag}: outputs differ by {out_err}");
-    let loss = sse / (b * spec.joints) as f64;
-    assert!(
-        ((loss - want_loss as f64) / want_loss as f64).abs() < 1e-5,
-        "{tag}: loss {loss} vs candle {want_loss}"
-    );
-    let gmax = want_grad.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-    assert!(gmax > 0.0, "{tag}: candle gradient is all zero");
-    let layout = spec.layout();
-    for t in &layout.tensors {
-        let r = t.range();
-        let err = grad[r.clone()]
-            .iter()
-            .zip(&want_grad[r.clone()])
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0f32, f32::max);
-        let tmax = want_grad[r].iter().fold(0.0f32, |m, v| m.max(v.abs()));
-        assert!(
-            err <= 1e-4 * gmax.max(1e-3) && err <= 1e-3 * tmax.max(1e-6) + 1e-6,
-            "{tag}: gradient of {} differs by {err} (tensor max {tmax}, global max {gmax})",
-            t.name
-        );
+        o
+    });
+    let out = cm.predict(&x, c.b).unwrap();
+    let (loss, grad) = cm.loss_and_grads(&x, &y, c.b).unwrap();
+    Reference {
+        loss: loss as f64,
+        out,
+        grad,
+        conv1d_out,
     }
 }
 
 #[test]
-fn tcn_relu_linear_matches_candle() {
-    check(ModelSpec::new(Architecture::Tcn, 20, 5, TcnBlock::ReluLinear), 6, 1);
-}
-
-#[test]
-fn tcn_relu_relu_matches_candle() {
-    check(ModelSpec::new(Architecture::Tcn, 20, 5, TcnBlock::ReluRelu), 6, 2);
-}
-
-#[test]
-fn tcn_paper_length_matches_candle() {
-    check(ModelSpec::new(Architecture::Tcn, 80, 5, TcnBlock::ReluLinear), 3, 3);
-}
-
-#[test]
-fn lstm_matches_candle() {
-    check(ModelSpec::new(Architecture::Lstm, 12, 5, TcnBlock::ReluLinear), 5, 4);
-}
-
-#[test]
-fn tcn_lstm_matches_candle() {
-    check(ModelSpec::new(Architecture::TcnLstm, 12, 5, TcnBlock::ReluRelu), 4, 5);
-    check(ModelSpec::new(Architecture::TcnLstm, 10, 3, TcnBlock::ReluLinear), 3, 6);
-}
-
-#[test]
-fn fnn_matches_candle() {
-    check(ModelSpec::new(Architecture::Fnn, 16, 5, TcnBlock::ReluLinear), 7, 7);
-}
-
-#[test]
-fn odd_joint_count_matches_candle() {
-    // A da Vinci wrist has 3 cable-driven joints: nothing assumes J = 5.
-    check(ModelSpec::new(Architecture::Tcn, 33, 3, TcnBlock::ReluLinear), 5, 8);
-    check(ModelSpec::new(Architecture::Lstm, 7, 3, TcnBlock::ReluLinear), 9, 9);
-}
-
-#[test]
-fn shards_sum_to_the_full_batch_gradient() {
-    let spec = ModelSpec::new(Architecture::TcnLstm, 10, 5, TcnBlock::ReluLinear);
-    let mut rng = ChaCha8Rng::seed_from_u64(11);
-    let params = spec.init_params(11);
-    let b = 8;
-    let x = random(b * 10 * 5, 1.0, &mut rng);
-    let y = random(b * 5, 1.0, &mut rng);
-    let net = Net::new(spec);
-    let prep = net.prepared(&params);
-    let scale = 2.0 / (b * 5) as f32;
-    let mut ws = net.workspace(b);
-    let mut full = vec![0.0; net.param_count()];
-    net.forward_backward(&params, &prep, &x, &y, b, scale, &mut ws, &mut full);
-    let mut sharded = vec![0.0; net.param_count()];
-    let (h, xl) = (3, 3 * 10 * 5);
-    net.forward_backward(&params, &prep, &x[..xl], &y[..h * 5], h, scale, &mut ws, &mut sharded);
-    net.forward_backward(
-        &params,
-        &prep,
-        &x[xl..],
-        &y[h * 5..],
-        b - h,
-        scale,
-        &mut ws,
-        &mut sharded,
-    );
-    let gmax = full.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-    for (a, b) in full.iter().zip(&sharded) {
-        assert!((a - b).abs() <= 1e-5 * gmax);
+fn fused_kernels_match_candle_live() {
+    for c in reference::cases().iter().filter(|c| !c.name.starts_with("portable_")) {
+        assert_matches(c, &fused(c), &candle(c));
     }
 }
 
-/// Mixed precision (bf16 operands, f32 sums in the LSTM's recurrent products) against the
-/// f32 kernels on the same batch: the forward pass outside training is f32 in both (same
-/// bits), the loss and every gradient tensor agree to bf16's precision, and they are not the
-/// f32 numbers (so the bf16 path did run).
 #[test]
-fn lstm_mixed_precision_gradients_follow_f32() {
-    use bowden_learning::kernels::Precision;
-    for (spec, b, seed) in [
-        (ModelSpec::new(Architecture::Lstm, 80, 5, TcnBlock::ReluLinear), 16, 21),
-        (ModelSpec::new(Architecture::Lstm, 9, 3, TcnBlock::ReluLinear), 5, 22),
-        (
-            ModelSpec::new(Architecture::TcnLstm, 12, 5, TcnBlock::ReluLinear),
-            4,
-            23,
-        ),
-    ] {
-        let tag = format!("{} L={} b={b}", spec.arch, spec.seq_len);
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let params = spec.init_params(seed);
-        let x = random(b * spec.seq_len * spec.joints, 1.5, &mut rng);
-        let y = random(b * spec.joints, 1.0, &mut rng);
-        let scale = 2.0 / (b * spec.joints) as f32;
-        let run = |precision: Precision| {
-            let net = Net::new(spec).with_precision(precision);
-            let prep = net.prepared(&params);
-            let mut ws = net.workspace(b);
-            let mut out = vec![0.0; b * spec.joints];
-            net.forward(&params, &prep, &x, b, &mut ws, &mut out);
-            let mut grad = vec![0.0; net.param_count()];
-            let sse = net.forward_backward(&params, &prep, &x, &y, b, scale, &mut ws, &mut grad);
-            (out, sse, grad)
-        };
-        let (out32, sse32, g32) = run(Precision::F32);
-        let (out16, sse16, g16) = run(Precision::Bf16);
-        assert_eq!(out32, out16, "{tag}: the forward pass outside training must stay f32");
-        assert!(
-            ((sse16 - sse32) / sse32).abs() < 1e-2,
-            "{tag}: loss {sse16} vs f32 {sse32}"
-        );
-        assert_ne!(g32, g16, "{tag}: the bf16 path gave the f32 gradient bit for bit");
-        for t in &spec.layout().tensors {
-            let r = t.range();
-            let norm = |g: &[f32]| g.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
-            let diff: Vec<f32> = g16[r.clone()].iter().zip(&g32[r.clone()]).map(|(a, b)| a - b).collect();
-            let rel = norm(&diff) / norm(&g32[r.clone()]).max(1e-12);
-            assert!(
-                rel < 2e-2,
-                "{tag}: gradient of {} differs by {rel:.4} (relative L2)",
-                t.name
-            );
-        }
+fn the_stored_references_are_candles() {
+    for c in reference::cases() {
+        let (live, stored) = (candle(&c), reference::load(&c));
+        assert_matches(&c, &stored, &live);
+    }
+}
+
+/// Rewrites `tests/data/candle/*.npy` (after a change to the cases or to candle).
+#[test]
+#[ignore]
+fn write_candle_references() {
+    for c in reference::cases() {
+        reference::store(&c, &candle(&c));
     }
 }

@@ -4,7 +4,9 @@
 mod dataset;
 mod decimation;
 mod kernels_vs_candle;
+mod kernels_vs_reference;
 mod onnx;
 mod plots;
 mod portable;
+mod reference;
 mod train;

@@ -1,9 +1,9 @@
-//! The portable (non-AVX-512) kernels, in a test binary of their own because the switch is
-//! process-wide: same outputs and gradients as candle, and finite differences agree with
-//! the fused gradient independently of candle.
+//! The portable (non-AVX-512) kernels: same loss and gradients as candle (its stored results,
+//! `reference.rs`), and finite differences agree with the fused gradient independently of
+//! candle. The switch is process-wide: the other tests of this binary then run the portable
+//! kernels too, which they are held to with the same tolerances.
 
-use bowden_learning::arch::{Architecture, ModelSpec, TcnBlock};
-use bowden_learning::candle_ref::CandleModel;
+use bowden_learning::arch::ModelSpec;
 use bowden_learning::kernels::{simd, Net};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -40,24 +40,14 @@ fn fused_grad(spec: ModelSpec, params: &[f32], x: &[f32], y: &[f32], b: usize) -
 fn portable_kernels_match_candle_and_finite_differences() {
     simd::force_portable(true);
     assert!(!simd::has_avx512());
-    for spec in [
-        ModelSpec::new(Architecture::Tcn, 20, 5, TcnBlock::ReluRelu),
-        ModelSpec::new(Architecture::Lstm, 9, 5, TcnBlock::ReluLinear),
-        ModelSpec::new(Architecture::TcnLstm, 9, 4, TcnBlock::ReluLinear),
-        ModelSpec::new(Architecture::Fnn, 12, 5, TcnBlock::ReluLinear),
-    ] {
-        let b = 4;
-        let (params, x, y) = setup(spec, b, 21);
+    for name in ["portable_tcn", "portable_lstm", "portable_tcn_lstm", "portable_fnn"] {
+        let case = crate::reference::case(name);
+        let (spec, b) = (case.spec, case.b);
+        let (params, x, y) = setup(spec, b, case.seed);
         let (loss, grad) = fused_grad(spec, &params, &x, &y, b);
-        let (want_loss, want) = CandleModel::from_params(spec, &params)
-            .unwrap()
-            .loss_and_grads(&x, &y, b)
-            .unwrap();
-        assert!(
-            ((loss - want_loss as f64) / want_loss as f64).abs() < 1e-5,
-            "{}",
-            spec.arch
-        );
+        let reference = crate::reference::load(&case);
+        let (want_loss, want) = (reference.loss, reference.grad);
+        assert!(((loss - want_loss) / want_loss).abs() < 1e-5, "{}", spec.arch);
         let gmax = want.iter().fold(0.0f32, |m, v| m.max(v.abs()));
         let err = grad
             .iter()

@@ -3,7 +3,7 @@
 
 use bowden_learning::arch::{tcn_num_blocks, Architecture, Direction, ModelSpec, TcnBlock};
 use bowden_learning::synthetic::hysteretic_dataset;
-use bowden_learning::train::{train, Backend, TrainConfig};
+use bowden_learning::train::{train, TrainConfig};
 use bowden_learning::windows::{PhySource, SplitConfig, WindowSet};
 
 #[test]
@@ -195,6 +195,8 @@ fn early_stopping_stops() {
     assert_eq!(out.epochs.len(), out.best_epoch + 3);
 }
 
+/// Needs candle: `cargo test -p bowden-learning --features candle`.
+#[cfg(feature = "candle")]
 #[test]
 fn candle_backend_follows_the_same_trajectory() {
     // Same init, same batches: after a few Adam steps the two backends agree closely.
@@ -205,7 +207,7 @@ fn candle_backend_follows_the_same_trajectory() {
         let mut cfg = TrainConfig::paper(arch, Direction::Forward, l, 1, 3);
         cfg.batch_size = 64;
         let fused = train(&w, &cfg, None).unwrap();
-        cfg.backend = Backend::Candle;
+        cfg.backend = bowden_learning::train::Backend::Candle;
         let candle = train(&w, &cfg, None).unwrap();
         let worst = fused
             .model

@@ -256,3 +256,123 @@ fn stamps_and_time_steps_resolve_per_mode() {
     );
     assert_eq!(rt.time_step_ns(5, Some(5)), 1, "never zero");
 }
+
+// The "write your own node" walk-through of docs/architecture.md, as a newcomer would type it:
+// a kind, its declared ports, its step; built by the runtime from a pipeline file and stepped
+// in both modes.
+mod tip_logger {
+    use bowden_interfaces::{services, JointEstimate};
+    use bowden_runtime::node::{InputDecl, NodeKind, Read, Schedule};
+    use bowden_runtime::ports::Input;
+    use bowden_runtime::stage::{Stage, StageError, StepCx, StepReport};
+
+    pub const KIND: NodeKind = NodeKind {
+        kind: "tip-logger",
+        summary: "prints the estimated joint angles once per second",
+        inputs: &[InputDecl::new(services::JOINT_ESTIMATE, Read::Feedback, 64)],
+        outputs: &[],
+        schedule: Schedule {
+            periodic: true,
+            period_us: Some(1_000_000),
+            wake_timeout_us: None,
+            deadline_us: None,
+        },
+        ports_from_params: None,
+        lockstep_refusal: None,
+        build: |env| {
+            Ok(Box::new(TipLogger {
+                estimates: env.input(services::JOINT_ESTIMATE)?,
+                seen: 0,
+            }))
+        },
+    };
+
+    pub struct TipLogger {
+        estimates: Input<JointEstimate>,
+        seen: u64,
+    }
+
+    impl Stage for TipLogger {
+        fn step(&mut self, cx: &StepCx) -> Result<StepReport, StageError> {
+            let mut last = None;
+            while let Some(e) = self.estimates.next(cx) {
+                last = Some(e);
+                self.seen += 1;
+            }
+            if let Some(e) = last {
+                println!("tick {}: q = {:?}", cx.tick(), &e.q_phy_deg[..e.n_joints as usize]);
+            }
+            Ok(StepReport::IDLE)
+        }
+
+        fn summary(&self) -> Vec<String> {
+            vec![format!("tip-logger: {} estimates", self.seen)]
+        }
+    }
+}
+
+#[test]
+fn a_new_kind_is_a_declaration_and_a_step() {
+    use bowden_runtime::stage::StageEnv;
+    const MINE: Registry = Registry(&[&SENSE, &tip_logger::KIND]);
+    let prefix = format!("ctl{}_", std::process::id());
+    let text = format!(
+        "[runtime]\nmode = \"lockstep\"\nprefix = \"{prefix}\"\nperiod_us = 1000\n\
+         [[node]]\nname = \"sense\"\n[[node]]\nname = \"tip-logger\"\n"
+    );
+    let cfg = PipelineConfig::parse(
+        &text,
+        ConfigOrigin::File(PathBuf::from("mine.toml")),
+        PathBuf::from("."),
+        &Overrides::default(),
+        MINE,
+    )
+    .unwrap();
+    let logger = cfg.stage("tip-logger").unwrap();
+    assert_eq!(
+        logger.passive_inputs,
+        vec![s::JOINT_ESTIMATE],
+        "feedback: not waited for"
+    );
+    assert!(matches!(
+        cfg.processes[1].activation,
+        Activation::Periodic {
+            period_ns: 1_000_000_000,
+            ..
+        }
+    ));
+    {
+        let ports = PortContext::new("tip-logger", &cfg.ipc()).unwrap();
+        let mut stage = (tip_logger::KIND.build)(&StageEnv {
+            spec: logger,
+            kind: &tip_logger::KIND,
+            pipeline: &cfg,
+            ports: &ports,
+        })
+        .unwrap();
+        let mut est = ports
+            .output::<bowden_interfaces::JointEstimate>(s::JOINT_ESTIMATE)
+            .unwrap();
+        for k in 0..3 {
+            est.publish(k, 0, bowden_interfaces::JointEstimate::default()).unwrap();
+        }
+        // Lockstep tick 2 reads the estimates of ticks 0 and 1; real time reads what is left.
+        stage.step(&StepCx::lockstep(2, 2_000_000, 1_000_000)).unwrap();
+        assert_eq!(stage.summary(), vec!["tip-logger: 2 estimates"]);
+        stage.step(&StepCx::realtime(0, 1, 1_000_000, 1)).unwrap();
+        assert_eq!(stage.summary(), vec!["tip-logger: 3 estimates"]);
+        // An undeclared port is refused when the node is built.
+        let undeclared = StageEnv {
+            spec: logger,
+            kind: &tip_logger::KIND,
+            pipeline: &cfg,
+            ports: &ports,
+        }
+        .input::<bowden_interfaces::PlantState>(s::PLANT_STATE)
+        .err()
+        .expect("undeclared");
+        assert!(undeclared.to_string().contains("does not declare"), "{undeclared}");
+    }
+    bowden_runtime::cleanup::remove_prefix_files(&cfg.ipc()).unwrap();
+    assert!(bowden_runtime::cleanup::prefix_files(&cfg.ipc()).is_empty());
+}
