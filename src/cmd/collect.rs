@@ -4,8 +4,8 @@
 //! the estimator on its last tick.
 
 use anyhow::{bail, Context, Result};
-use bowden_evaluation::{camera_fps_for, pipeline_variant};
-use bowden_interfaces::{services, JointCommand, JointEstimate, JointTarget, PlantState};
+use bowden_evaluation::{camera_fps_for, hold, pipeline_variant};
+use bowden_interfaces::{services, JointEstimate, JointTarget};
 use bowden_kinematics::{Robot, N_JOINTS};
 use bowden_learning::dataset::{fnv1a64_hex, Dataset};
 use bowden_runtime::config::{Mode, Overrides, PipelineConfig};
@@ -179,22 +179,8 @@ fn collect(mut a: CollectArgs) -> Result<()> {
             .step_with(JointTarget::from_deg(&[0.0; N_JOINTS]))
             .context("warm-up tick")?;
         for (i, q) in commands.iter().enumerate() {
-            let mut state = None;
-            let mut estimate = None;
-            let mut sent = None;
-            let mut t_ns = 0;
-            for _ in 0..a.settle_ticks {
-                let out = session
-                    .step_with(JointTarget::from_deg(q))
-                    .with_context(|| format!("command {i}"))?;
-                if let Some(e) = out.events.first() {
-                    bail!("command {i}: a node failed at tick {}: {e}", out.tick);
-                }
-                state = out.get::<PlantState>(services::PLANT_STATE).or(state);
-                sent = out.get::<JointCommand>(services::JOINT_COMMAND).or(sent);
-                estimate = out.get::<JointEstimate>(services::JOINT_ESTIMATE);
-                t_ns = out.t_sim_ns;
-            }
+            let held = hold(&mut session, q, a.settle_ticks).with_context(|| format!("command {i}"))?;
+            let (state, sent, estimate, t_ns) = (held.state, held.command, held.estimate, held.t_sim_ns);
             let Some(state) = state else {
                 bail!("command {i}: no plant state came back (is the plant in the pipeline?)");
             };

@@ -296,60 +296,18 @@ pub fn run(c: Command) -> anyhow::Result<()> {
             prefix,
             namespace,
         } => {
-            use bowden_interfaces::{services, ComponentStatus, SafetyCommand};
-            use bowden_runtime::stage::state;
-            let ctx = PortContext::new("estop", &IpcSettings { prefix, namespace }).context("iceoryx2")?;
-            let mut statuses = ctx
-                .input::<ComponentStatus>(services::COMPONENT_STATUS, 256)
-                .context("status service")?;
-            let mut out = ctx
-                .output::<SafetyCommand>(services::SAFETY)
-                .context("safety service")?;
-            let wake = ctx.notifier(services::SAFETY).context("safety service")?;
-            let cmd = SafetyCommand {
-                command: if release {
-                    SafetyCommand::RELEASE
-                } else {
-                    SafetyCommand::ESTOP
-                },
-                ..Default::default()
+            use bowden_runtime::safety::{SafetyAction, SafetyLink};
+            let action = if release {
+                SafetyAction::Release
+            } else {
+                SafetyAction::Estop
             };
-            let n = out
-                .publish(0, bowden_runtime::sys::monotonic_ns(), cmd)
-                .context("sending the safety command")?;
-            wake.notify().context("waking the actuator")?;
-            println!(
-                "{} sent to {n} subscriber(s)",
-                if release { "release" } else { "e-stop" }
-            );
-            if n == 0 {
-                bail!("no actuator is listening on {}", services::SAFETY);
-            }
-            // The sample lives in this process's shared memory: stay until it is acted upon.
-            let deadline = std::time::Instant::now() + Duration::from_millis(timeout_ms);
-            loop {
-                while let Some(st) = statuses.recv() {
-                    if st.name() != stage {
-                        continue;
-                    }
-                    let confirmed = if release {
-                        st.state == state::RUNNING || st.state == state::DEGRADED
-                    } else {
-                        st.state == state::ESTOP
-                    };
-                    if confirmed {
-                        println!("confirmed by `{}`", st.name());
-                        return Ok(());
-                    }
-                }
-                if std::time::Instant::now() >= deadline {
-                    bail!(
-                        "stage `{stage}` did not confirm the {} within {timeout_ms} ms",
-                        if release { "release" } else { "e-stop" }
-                    );
-                }
-                std::thread::sleep(Duration::from_millis(1));
-            }
+            let mut link = SafetyLink::open("estop", &IpcSettings { prefix, namespace }).context("iceoryx2")?;
+            let n = link.send(action)?;
+            println!("{action} sent to {n} subscriber(s)");
+            link.confirm(&stage, action, Duration::from_millis(timeout_ms))?;
+            println!("confirmed by `{stage}`");
+            Ok(())
         }
     }
 }

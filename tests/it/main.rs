@@ -24,6 +24,7 @@ mod feedback_lockstep;
 mod hygiene;
 mod learning_cli;
 mod learning_compensator;
+mod no_stale_truth;
 mod pipeline_config;
 mod plant_cli;
 mod python_client;

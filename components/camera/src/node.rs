@@ -39,6 +39,23 @@ struct Params {
     /// Frame rate, frames per (simulated, in lockstep) second.
     #[serde(default = "thirty")]
     fps: f64,
+    /// No stale truth: the synthetic camera renders a plant state only while it is at most
+    /// this old (on the run's clock); an older one means the robot stopped reporting, and the
+    /// camera sends no frame rather than the last pose again.
+    #[serde(default = "hundred")]
+    max_state_age_ms: f64,
+    /// A plant state outside the robot's joint ranges by more than this is a fault, not a
+    /// pose: it is rejected (counted) and nothing is rendered until a plausible one arrives.
+    #[serde(default = "ten")]
+    range_margin_deg: f64,
+}
+
+fn hundred() -> f64 {
+    100.0
+}
+
+fn ten() -> f64 {
+    10.0
 }
 
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -54,6 +71,15 @@ fn thirty() -> f64 {
 }
 
 struct CameraStage {
+    robot: bowden_kinematics::Robot,
+    max_state_age_ns: u64,
+    range_margin_deg: f64,
+    /// `t_origin_ns` of the state in `q`.
+    state_t_ns: u64,
+    /// Frame slots skipped because the newest state was too old.
+    stale_skips: u64,
+    /// The last frame slot was skipped as stale.
+    stale: bool,
     source: Box<dyn FrameSource>,
     recorder: Option<Recorder>,
     input: Input<PlantState>,
@@ -100,8 +126,21 @@ fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         Some(f) => MarkerGeometry::load(env.resolve(f)).map_err(|e| env.error(e))?,
         None => MarkerGeometry::paper_default(),
     };
+    for (name, v) in [
+        ("max_state_age_ms", p.max_state_age_ms),
+        ("range_margin_deg", p.range_margin_deg),
+    ] {
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(env.error(format!("params.{name} must be a non-negative number, got {v}")));
+        }
+    }
     let source: Box<dyn FrameSource> = match p.source {
-        SourceKind::Synthetic => Box::new(SyntheticCamera::new(robot, markers, cfg, env.pipeline.runtime.seed)),
+        SourceKind::Synthetic => Box::new(SyntheticCamera::new(
+            robot.clone(),
+            markers,
+            cfg,
+            env.pipeline.runtime.seed,
+        )),
         SourceKind::Recorded => {
             let dir = p
                 .frames
@@ -122,6 +161,12 @@ fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
     Ok(Box::new(CameraStage {
         out: env.frame_output(services::RGBD_FRAME, len)?,
         input: env.input(services::PLANT_STATE)?,
+        robot,
+        max_state_age_ns: (p.max_state_age_ms * 1e6) as u64,
+        range_margin_deg: p.range_margin_deg,
+        state_t_ns: 0,
+        stale_skips: 0,
+        stale: false,
         source,
         recorder,
         frame_period_ns: (1e9 / p.fps) as u64,
@@ -139,24 +184,39 @@ fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
 impl Stage for CameraStage {
     fn step(&mut self, cx: &StepCx) -> Result<StepReport, StageError> {
         if let Some(s) = self.input.next(cx) {
-            match bowden_interfaces::finite_joints::<5>(&s.q_phy_deg, s.n_joints) {
+            let plausible = bowden_interfaces::finite_joints::<5>(&s.q_phy_deg, s.n_joints)
+                .filter(|q| self.robot.check_plausible(q, self.range_margin_deg).is_ok());
+            match plausible {
                 Some(q) => {
                     self.q = Some(q);
                     self.state_tick = s.header.tick;
+                    self.state_t_ns = s.header.t_origin_ns;
                 }
-                None => self.rejected += 1,
+                None => {
+                    // Never render the last good pose as if the robot still were there.
+                    self.rejected += 1;
+                    self.q = None;
+                }
             }
         }
         let t = cx.clock_ns();
         if self.next_frame_ns.is_some_and(|n| t < n) {
             return Ok(StepReport::IDLE);
         }
+        let stale =
+            self.source.needs_state() && self.q.is_some() && t.saturating_sub(self.state_t_ns) > self.max_state_age_ns;
         if (self.source.needs_state() && self.q.is_none()) || !self.source.has_frame(self.frames) {
             return Ok(StepReport::IDLE);
         }
         // The next exposure on the frame grid; after a stall, rejoin it rather than burst.
         let next = self.next_frame_ns.unwrap_or(t) + self.frame_period_ns;
         self.next_frame_ns = Some(if next <= t { t + self.frame_period_ns } else { next });
+        self.stale = stale;
+        if stale {
+            // The robot stopped reporting: this exposure is skipped, not filled with the past.
+            self.stale_skips += 1;
+            return Ok(StepReport::IDLE);
+        }
         let tick = cx.out_tick(self.state_tick);
         let len = self.source.payload_len();
         let (source, frames, q) = (&mut self.source, self.frames, self.q);
@@ -197,18 +257,22 @@ impl Stage for CameraStage {
     fn counters(&self) -> StageCounters {
         StageCounters {
             rejected: self.rejected,
-            faults: self.render_errors + self.record_errors,
-            degraded: (self.source.needs_state() && self.q.is_none()) || !self.source.has_frame(self.frames),
+            // A frame slot skipped on a stale robot state is a fault of the robot side.
+            faults: self.render_errors + self.record_errors + self.stale_skips,
+            degraded: (self.source.needs_state() && self.q.is_none())
+                || self.stale
+                || !self.source.has_frame(self.frames),
             estop: false,
         }
     }
 
     fn summary(&self) -> Vec<String> {
         let mut v = vec![format!(
-            "camera: {} frames ({}), rejected plant states {}, render errors {}",
+            "camera: {} frames ({}), rejected plant states {}, frames not sent on a stale state {}, render errors {}",
             self.frames,
             self.source.name(),
             self.rejected,
+            self.stale_skips,
             self.render_errors
         )];
         if let Some(r) = &self.recorder {

@@ -33,6 +33,48 @@ pub enum EvalError {
     Io { path: PathBuf, source: std::io::Error },
 }
 
+/// What holding one target measured: the newest joint command and plant state of the hold,
+/// and the joint estimate of its last tick only (the one frame per held point that sees the
+/// settled robot), at the simulated time of that tick.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Held {
+    pub command: Option<JointCommand>,
+    pub state: Option<PlantState>,
+    pub estimate: Option<JointEstimate>,
+    pub t_sim_ns: u64,
+}
+
+/// Why holding a target failed.
+#[derive(Debug, thiserror::Error)]
+pub enum HoldError {
+    #[error(transparent)]
+    Session(#[from] SessionError),
+    #[error("a node failed at tick {tick}: {event}")]
+    NodeFailed { tick: u64, event: String },
+}
+
+/// The one hold-and-measure loop of `collect` and `evaluate`: publishes target `q_deg` for
+/// `ticks` ticks (at least one) of a lockstep session that is the targets' source and taps
+/// the joint commands, plant states and joint estimates, and returns what the hold measured.
+/// A node that fails during the hold ends it with [`HoldError::NodeFailed`].
+pub fn hold(s: &mut LockstepSession, q_deg: &[f64], ticks: u32) -> Result<Held, HoldError> {
+    let mut held = Held::default();
+    for _ in 0..ticks.max(1) {
+        let out = s.step_with(JointTarget::from_deg(q_deg))?;
+        if let Some(e) = out.events.first() {
+            return Err(HoldError::NodeFailed {
+                tick: out.tick,
+                event: e.clone(),
+            });
+        }
+        held.command = out.get::<JointCommand>(services::JOINT_COMMAND).or(held.command);
+        held.state = out.get::<PlantState>(services::PLANT_STATE).or(held.state);
+        held.estimate = out.get::<JointEstimate>(services::JOINT_ESTIMATE);
+        held.t_sim_ns = out.t_sim_ns;
+    }
+    Ok(held)
+}
+
 /// What one trajectory point produced.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct PointRecord {
@@ -283,35 +325,23 @@ pub fn run_trajectory(
         // see `camera_fps_for`) on the last tick of every point.
         s.step_with(JointTarget::from_deg(&[0.0; N_JOINTS]))
             .map_err(session_err)?;
+        let hold_err = |e: HoldError, during: &str| match e {
+            HoldError::Session(source) => EvalError::Session {
+                what: what.clone(),
+                source,
+            },
+            HoldError::NodeFailed { tick, event } => EvalError::Run {
+                what: what.clone(),
+                message: format!("a node failed at tick {tick}{during}: {event}"),
+            },
+        };
         for q in approach {
-            for _ in 0..settings.settle_ticks.max(1) {
-                let out = s.step_with(JointTarget::from_deg(q)).map_err(session_err)?;
-                if let Some(e) = out.events.first() {
-                    return Err(EvalError::Run {
-                        what: what.clone(),
-                        message: format!("a node failed at tick {} (approach): {e}", out.tick),
-                    });
-                }
-            }
+            hold(&mut s, q, settings.settle_ticks).map_err(|e| hold_err(e, " (approach)"))?;
         }
         for q in q_path {
-            let mut last_cmd = None;
-            let mut last_state = None;
-            let mut last_est: Option<JointEstimate> = None;
-            for _ in 0..settings.settle_ticks.max(1) {
-                let out = s.step_with(JointTarget::from_deg(q)).map_err(session_err)?;
-                if let Some(e) = out.events.first() {
-                    return Err(EvalError::Run {
-                        what: what.clone(),
-                        message: format!("a node failed at tick {}: {e}", out.tick),
-                    });
-                }
-                last_cmd = out.get::<JointCommand>(services::JOINT_COMMAND).or(last_cmd);
-                last_state = out.get::<PlantState>(services::PLANT_STATE).or(last_state);
-                // Only the estimate of the point's last tick measures the settled robot.
-                last_est = out.get::<JointEstimate>(services::JOINT_ESTIMATE);
-            }
-            let (Some(cmd), Some(state)) = (last_cmd, last_state) else {
+            let h = hold(&mut s, q, settings.settle_ticks).map_err(|e| hold_err(e, ""))?;
+            let last_est = h.estimate;
+            let (Some(cmd), Some(state)) = (h.command, h.state) else {
                 return Err(EvalError::Run {
                     what: what.clone(),
                     message: "no command or plant state came back: is the pipeline complete?".into(),

@@ -94,6 +94,31 @@ impl Robot {
         self.check_with_opening(q_deg, self.config.limits.min_jaw_opening_deg)
     }
 
+    /// Checks that a *measured* or simulated joint vector is physically plausible: finite and
+    /// inside the joint ranges widened by `margin_deg` on each side (a joint overshoots its
+    /// nominal range a little; a reading far outside it is a sensor or model fault, not a pose).
+    pub fn check_plausible(&self, q_deg: &JointsDeg, margin_deg: f64) -> Result<(), LimitError> {
+        let lim = &self.config.limits;
+        for (j, &v) in q_deg.iter().enumerate() {
+            if !v.is_finite() {
+                return Err(LimitError::NotFinite {
+                    joint: j + 1,
+                    value_deg: v,
+                });
+            }
+            let (lo, hi) = (lim.q_min_deg[j] - margin_deg, lim.q_max_deg[j] + margin_deg);
+            if v < lo || v > hi {
+                return Err(LimitError::OutOfRange {
+                    joint: j + 1,
+                    value_deg: v,
+                    min_deg: lo,
+                    max_deg: hi,
+                });
+            }
+        }
+        Ok(())
+    }
+
     /// Checks a joint *command* (a drive position): the joint ranges as [`Self::check_limits`],
     /// the jaw opening against the commanded bound `min_jaw_command_opening_deg`.
     pub fn check_command_limits(&self, q_cmd_deg: &JointsDeg) -> Result<(), LimitError> {

@@ -22,6 +22,29 @@ struct Params {
     /// the same design than the one it was trained on: `bowden evaluate --units per-repeat`).
     #[serde(default)]
     unit: Option<UnitChoice>,
+    /// Fault injection: the simulated robot misbehaves from `after_s` seconds of its own
+    /// time on, to try how the pipeline detects and reacts (off by default).
+    #[serde(default)]
+    fault: Option<FaultParams>,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FaultParams {
+    kind: FaultKind,
+    after_s: f64,
+}
+
+/// What a faulty robot does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+enum FaultKind {
+    /// Reports NaN joint angles (a broken encoder or a diverged model).
+    Nan,
+    /// Reports joint angles far outside the robot's ranges (±900°).
+    OutOfRange,
+    /// Stops reporting, the process still alive (a stuck driver).
+    Silent,
 }
 
 #[derive(Debug, Deserialize)]
@@ -50,6 +73,8 @@ struct PlantStage {
     rejected: u64,
     step_errors: u64,
     first_error: Option<String>,
+    fault: Option<(FaultKind, u64)>,
+    faulty_states: u64,
 }
 
 /// The `plant` node kind: its declared ports and schedule (see `bowden_runtime::node`).
@@ -71,6 +96,14 @@ pub const KIND: NodeKind = NodeKind {
 
 fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
     let p: Params = env.params()?;
+    if let Some(f) = p.fault {
+        if !(f.after_s.is_finite() && f.after_s >= 0.0) {
+            return Err(env.error(format!(
+                "params.fault.after_s must be a non-negative number, got {}",
+                f.after_s
+            )));
+        }
+    }
     let robot = bowden_kinematics::Robot::load_or_paper(env.robot_file().as_deref()).map_err(|e| env.error(e))?;
     let cfg = match &p.config {
         Some(f) => PlantConfig::load(env.resolve(f)).map_err(|e| env.error(e))?,
@@ -95,6 +128,8 @@ fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         rejected: 0,
         step_errors: 0,
         first_error: None,
+        fault: p.fault.map(|f| (f.kind, (f.after_s * 1e9) as u64)),
+        faulty_states: 0,
     }))
 }
 
@@ -119,6 +154,17 @@ impl Stage for PlantStage {
         }
         let mut s = PlantState::default();
         self.plant.fill_state(&mut s);
+        if let Some((kind, after_ns)) = self.fault {
+            if self.plant.t_sim_ns() >= after_ns {
+                self.faulty_states += 1;
+                let n = s.n_joints as usize;
+                match kind {
+                    FaultKind::Nan => s.q_phy_deg[..n].fill(f64::NAN),
+                    FaultKind::OutOfRange => s.q_phy_deg[..n].fill(900.0),
+                    FaultKind::Silent => return Ok(StepReport::IDLE),
+                }
+            }
+        }
         self.out.publish(cx.out_tick(self.last_tick), now, s)?;
         Ok(StepReport {
             active: true,
@@ -142,6 +188,13 @@ impl Stage for PlantStage {
         )];
         if let Some(e) = &self.first_error {
             v.push(format!("plant: first refused step: {e}"));
+        }
+        if let Some((kind, after_ns)) = self.fault {
+            v.push(format!(
+                "plant: injected fault {kind:?} from t_sim {:.3} s: {} faulty states",
+                after_ns as f64 / 1e9,
+                self.faulty_states
+            ));
         }
         v
     }

@@ -13,6 +13,7 @@
 //! - [`launch`] and [`session`]: the supervisor and the launcher (`bowden run`), and
 //!   [`session::LockstepSession`] for library callers that step a multi-process pipeline;
 //! - [`record`] and [`replay`]: fixed-layout logs with an index, and their replay;
+//! - [`safety`]: the e-stop protocol (send, confirm) any tool speaks to a running pipeline;
 //! - [`cleanup`]: stale-resource removal after crashed or killed processes;
 //! - [`config`]: the pipeline configuration.
 
@@ -27,6 +28,7 @@ pub mod ports;
 pub mod record;
 pub mod replay;
 pub mod rt;
+pub mod safety;
 pub mod session;
 pub mod stage;
 pub mod stats;
