@@ -31,12 +31,7 @@ const BRIDGE: NodeKind = NodeKind {
     summary: "forwards chosen services to and from another machine over Zenoh (not built in)",
     inputs: &[],
     outputs: &[],
-    schedule: bowden_runtime::node::Schedule {
-        periodic: false,
-        period_us: None,
-        wake_timeout_us: None,
-        deadline_us: None,
-    },
+    schedule: bowden_runtime::node::Schedule::EVENT,
     ports_from_params: Some(|_| Err(NO_BRIDGE.into())),
     lockstep_refusal: None,
     build: |env| Err(env.error(NO_BRIDGE)),

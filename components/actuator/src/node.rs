@@ -71,10 +71,9 @@ pub const KIND: NodeKind = NodeKind {
     ],
     outputs: &[services::MOTOR_COMMAND],
     schedule: Schedule {
-        periodic: false,
-        period_us: None,
         wake_timeout_us: Some(5_000),
         deadline_us: Some(1_000),
+        ..Schedule::EVENT
     },
     ports_from_params: None,
     lockstep_refusal: None,

@@ -75,10 +75,8 @@ pub const KIND: NodeKind = NodeKind {
     ],
     outputs: &[services::MODEL_UPDATE],
     schedule: Schedule {
-        periodic: true,
         period_us: Some(20_000),
-        wake_timeout_us: None,
-        deadline_us: None,
+        ..Schedule::PERIODIC
     },
     ports_from_params: None,
     lockstep_refusal: None,

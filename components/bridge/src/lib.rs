@@ -281,10 +281,8 @@ pub const KIND: NodeKind = NodeKind {
     inputs: &[],
     outputs: &[],
     schedule: Schedule {
-        periodic: false,
-        period_us: None,
         wake_timeout_us: Some(50_000),
-        deadline_us: None,
+        ..Schedule::EVENT
     },
     ports_from_params: Some(bridge_ports),
     lockstep_refusal: Some(

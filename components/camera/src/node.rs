@@ -101,12 +101,7 @@ pub const KIND: NodeKind = NodeKind {
     summary: "the synthetic RGBD camera: true joint angles → colour + depth frames",
     inputs: &[InputDecl::new(services::PLANT_STATE, Read::Tick, 4)],
     outputs: &[services::RGBD_FRAME],
-    schedule: Schedule {
-        periodic: true,
-        period_us: None,
-        wake_timeout_us: None,
-        deadline_us: None,
-    },
+    schedule: Schedule::PERIODIC,
     ports_from_params: None,
     lockstep_refusal: None,
     build,

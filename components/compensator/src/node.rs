@@ -83,10 +83,8 @@ pub const KIND: NodeKind = NodeKind {
     ],
     outputs: &[services::JOINT_COMMAND],
     schedule: Schedule {
-        periodic: false,
-        period_us: None,
-        wake_timeout_us: None,
         deadline_us: Some(500),
+        ..Schedule::EVENT
     },
     ports_from_params: None,
     lockstep_refusal: None,

@@ -39,12 +39,7 @@ pub const KIND: NodeKind = NodeKind {
         InputDecl::new(services::MOTOR_COMMAND, Read::Hint, 8),
     ],
     outputs: &[services::MARKER_SET, services::JOINT_ESTIMATE],
-    schedule: Schedule {
-        periodic: false,
-        period_us: None,
-        wake_timeout_us: None,
-        deadline_us: None,
-    },
+    schedule: Schedule::EVENT,
     ports_from_params: None,
     lockstep_refusal: None,
     build,

@@ -83,12 +83,7 @@ pub const KIND: NodeKind = NodeKind {
     summary: "the simulated tendon-sheath manipulator: motor setpoints → true joint angles",
     inputs: &[InputDecl::new(services::MOTOR_COMMAND, Read::Tick, 4)],
     outputs: &[services::PLANT_STATE],
-    schedule: Schedule {
-        periodic: true,
-        period_us: None,
-        wake_timeout_us: None,
-        deadline_us: None,
-    },
+    schedule: Schedule::PERIODIC,
     ports_from_params: None,
     lockstep_refusal: None,
     build,

@@ -66,6 +66,23 @@ pub struct Schedule {
     pub deadline_us: Option<u64>,
 }
 
+impl Schedule {
+    /// Woken at the pipeline's period; no deadline.
+    pub const PERIODIC: Schedule = Schedule {
+        periodic: true,
+        period_us: None,
+        wake_timeout_us: None,
+        deadline_us: None,
+    };
+    /// Woken by its inputs; no watchdog, no deadline.
+    pub const EVENT: Schedule = Schedule {
+        periodic: false,
+        period_us: None,
+        wake_timeout_us: None,
+        deadline_us: None,
+    };
+}
+
 /// Ports of a kind that depend on its parameters (a bridge's export/import lists, a
 /// recorder's services).
 #[derive(Debug, Clone, Default, PartialEq, Eq)]

@@ -647,10 +647,8 @@ pub const KIND: NodeKind = NodeKind {
     inputs: &[],
     outputs: &[],
     schedule: Schedule {
-        periodic: true,
         period_us: Some(10_000),
-        wake_timeout_us: None,
-        deadline_us: None,
+        ..Schedule::PERIODIC
     },
     ports_from_params: Some(recorder_ports),
     lockstep_refusal: None,

@@ -96,10 +96,8 @@ pub const KIND: NodeKind = NodeKind {
     inputs: &[],
     outputs: &[services::JOINT_TARGET],
     schedule: Schedule {
-        periodic: true,
-        period_us: None,
-        wake_timeout_us: None,
         deadline_us: Some(200),
+        ..Schedule::PERIODIC
     },
     ports_from_params: None,
     lockstep_refusal: None,
