@@ -4,11 +4,7 @@
 //! device that cannot be opened stops the node at start with its path named.
 
 use crate::runtime_support::*;
-use bowden::registry::REGISTRY;
 use bowden_interfaces::{services, MotorCommand};
-use bowden_runtime::config::{Mode, Overrides, PipelineConfig};
-use bowden_runtime::launch::LaunchOptions;
-use bowden_runtime::session::{LockstepSession, SessionOptions};
 use std::fs::File;
 use std::io::Read;
 use std::os::fd::FromRawFd;
@@ -41,19 +37,7 @@ fn the_serial_drive_gets_every_setpoint_the_actuator_publishes() {
     let mut drive = toml::Table::new();
     drive.insert("serial".into(), toml::Value::String(dev.clone()));
     let file = pipeline(dir.path(), toml::Value::Table(drive));
-    let (prefix, _guard) = guarded_prefix("drs");
-    let ov = Overrides {
-        mode: Some(Mode::Lockstep),
-        prefix: Some(prefix),
-        ..Default::default()
-    };
-    let cfg = PipelineConfig::load(&file, &ov, REGISTRY).unwrap();
-    let mut opts = SessionOptions::new(LaunchOptions {
-        quiet_children: true,
-        ..LaunchOptions::with_exe(bowden_exe())
-    });
-    opts.taps = vec![services::MOTOR_COMMAND.into()];
-    let mut s = LockstepSession::start(&cfg, opts).unwrap();
+    let (mut s, _guard) = lockstep_session(&file, "drs", &[services::MOTOR_COMMAND]);
     let (mut published, mut text, mut buf) = (Vec::new(), String::new(), [0u8; 8192]);
     for _ in 0..300 {
         let out = s.step().unwrap();

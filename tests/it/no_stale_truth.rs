@@ -5,11 +5,7 @@
 //! ticks, the camera at 50 fps.
 
 use crate::runtime_support::*;
-use bowden::registry::REGISTRY;
 use bowden_interfaces::{services, JointEstimate};
-use bowden_runtime::config::{Mode, Overrides, PipelineConfig};
-use bowden_runtime::launch::LaunchOptions;
-use bowden_runtime::session::{LockstepSession, SessionOptions};
 use std::path::Path;
 
 const FAULT_AT_S: f64 = 1.0;
@@ -35,19 +31,7 @@ fn run(dir: &Path, kind: &str, tag: &str) -> (usize, usize, Vec<String>) {
         .unwrap()
         .insert("period_us".into(), toml::Value::Integer(10_000));
     std::fs::write(&file, toml::to_string(&t).unwrap()).unwrap();
-    let (prefix, _guard) = guarded_prefix(tag);
-    let ov = Overrides {
-        mode: Some(Mode::Lockstep),
-        prefix: Some(prefix),
-        ..Default::default()
-    };
-    let cfg = PipelineConfig::load(&file, &ov, REGISTRY).unwrap();
-    let mut opts = SessionOptions::new(LaunchOptions {
-        quiet_children: true,
-        ..LaunchOptions::with_exe(bowden_exe())
-    });
-    opts.taps = vec![services::JOINT_ESTIMATE.into()];
-    let mut s = LockstepSession::start(&cfg, opts).unwrap();
+    let (mut s, _guard) = lockstep_session(&file, tag, &[services::JOINT_ESTIMATE]);
     // The camera may still send frames of states taken before the fault for up to its
     // max_state_age_ms (100 ms by default): a frame's time is when it was exposed.
     let grace_ns = ((FAULT_AT_S + 0.1) * 1e9) as u64 + 10_000_000;

@@ -6,11 +6,7 @@
 //! naming the parameter and the file.
 
 use crate::runtime_support::*;
-use bowden::registry::REGISTRY;
 use bowden_interfaces::{services, JointEstimate, PlantState};
-use bowden_runtime::config::{Mode, Overrides, PipelineConfig};
-use bowden_runtime::launch::LaunchOptions;
-use bowden_runtime::session::{LockstepSession, SessionOptions};
 use std::path::{Path, PathBuf};
 
 const TICKS: u64 = 160;
@@ -34,19 +30,7 @@ fn pipeline(dir: &Path, name: &str, camera: &[(&str, toml::Value)]) -> PathBuf {
 
 /// Every tick's joint estimate (None where no frame was taken) and the truth of that tick.
 fn run(file: &Path, tag: &str) -> Vec<(Option<JointEstimate>, PlantState)> {
-    let (prefix, _guard) = guarded_prefix(tag);
-    let ov = Overrides {
-        mode: Some(Mode::Lockstep),
-        prefix: Some(prefix),
-        ..Default::default()
-    };
-    let cfg = PipelineConfig::load(file, &ov, REGISTRY).unwrap();
-    let mut opts = SessionOptions::new(LaunchOptions {
-        quiet_children: true,
-        ..LaunchOptions::with_exe(bowden_exe())
-    });
-    opts.taps = vec![services::JOINT_ESTIMATE.into(), services::PLANT_STATE.into()];
-    let mut s = LockstepSession::start(&cfg, opts).unwrap();
+    let (mut s, _guard) = lockstep_session(file, tag, &[services::JOINT_ESTIMATE, services::PLANT_STATE]);
     let mut v = Vec::new();
     for _ in 0..TICKS {
         let out = s.step().unwrap();

@@ -112,3 +112,28 @@ name = "plant"
 "#
     )
 }
+
+/// A lockstep session of the pipeline file `file` (the `bowden` binary's kinds) under the test
+/// prefix of `tag`, tapping `taps`; the guard removes the prefix's files when dropped.
+pub fn lockstep_session(
+    file: &Path,
+    tag: &str,
+    taps: &[&str],
+) -> (bowden_runtime::session::LockstepSession, PrefixGuard) {
+    use bowden_runtime::config::{Mode, Overrides, PipelineConfig};
+    use bowden_runtime::launch::LaunchOptions;
+    use bowden_runtime::session::{LockstepSession, SessionOptions};
+    let (prefix, guard) = guarded_prefix(tag);
+    let ov = Overrides {
+        mode: Some(Mode::Lockstep),
+        prefix: Some(prefix),
+        ..Default::default()
+    };
+    let cfg = PipelineConfig::load(file, &ov, bowden::registry::REGISTRY).unwrap();
+    let mut opts = SessionOptions::new(LaunchOptions {
+        quiet_children: true,
+        ..LaunchOptions::with_exe(bowden_exe())
+    });
+    opts.taps = taps.iter().map(|s| s.to_string()).collect();
+    (LockstepSession::start(&cfg, opts).unwrap(), guard)
+}
