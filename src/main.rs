@@ -84,6 +84,11 @@ fn main() -> std::process::ExitCode {
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) if e.downcast_ref::<cmd::ExitCode>().is_some() => {
+            let code = e.downcast_ref::<cmd::ExitCode>().map_or(1, |c| c.code);
+            eprintln!("bowden: {e}");
+            std::process::ExitCode::from(code)
+        }
         Err(e) => {
             eprintln!("error: {}", error_line(&e));
             std::process::ExitCode::FAILURE

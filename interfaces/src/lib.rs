@@ -179,6 +179,8 @@ impl MotorCommand {
     pub const FLAG_ESTOP: u32 = 1;
     pub const FLAG_HOLD: u32 = 2;
     pub const FLAG_CLAMPED: u32 = 4;
+    /// Holding because the robot's reported state could not be trusted (with `FLAG_HOLD`).
+    pub const FLAG_FAULT: u32 = 8;
 }
 
 /// Ground truth of the simulated plant (simulation only): plant → camera, recorder, evaluator.
@@ -289,9 +291,12 @@ pub struct ComponentStatus {
     pub header: SampleHeader,
     /// Node name, NUL-padded UTF-8.
     pub node_name: [u8; 32],
-    /// 0 starting, 1 running, 2 degraded (faults counted), 3 stopped, 4 e-stop.
+    /// 0 starting, 1 running, 2 degraded (faults counted), 3 stopped, 4 e-stop, 5 safe hold
+    /// after a fault (latched until it clears as configured or a person releases it).
     pub state: u32,
-    pub _pad: u32,
+    /// The last fault this stage detected ([`fault`] codes, 0 = none): with the state, what a
+    /// supervisor reports and classifies.
+    pub last_fault: u32,
     pub cycles: u64,
     pub deadline_misses: u64,
     /// Samples rejected as invalid (NaN, out of range, wrong size).
@@ -316,6 +321,39 @@ impl ComponentStatus {
     pub fn name(&self) -> &str {
         let end = self.node_name.iter().position(|&b| b == 0).unwrap_or(32);
         core::str::from_utf8(&self.node_name[..end]).unwrap_or("<non-utf8>")
+    }
+}
+
+/// Fault codes of [`ComponentStatus::last_fault`]: what a stage detected, by class. The robot
+/// side (`STATE_*`) is the state a driver or plant process reports; `INPUT_*` is a stage's own
+/// inputs.
+pub mod fault {
+    pub const NONE: u32 = 0;
+    /// A command input went stale (the actuator's watchdog).
+    pub const INPUT_STALE: u32 = 1;
+    /// The robot reported a joint angle that is NaN or infinite.
+    pub const STATE_NOT_FINITE: u32 = 2;
+    /// The robot reported a joint angle outside its ranges widened by the margin.
+    pub const STATE_IMPLAUSIBLE: u32 = 3;
+    /// The robot's state is older than the configured bound (a silent or hung driver).
+    pub const STATE_STALE: u32 = 4;
+    /// Robot states went missing: a gap in the publisher's sequence numbers.
+    pub const STATE_GAP: u32 = 5;
+    /// The robot's state has another joint count than the robot file.
+    pub const STATE_JOINT_COUNT: u32 = 6;
+
+    /// A short name for reports (`"?"` for a code this build does not know).
+    pub fn name(code: u32) -> &'static str {
+        match code {
+            NONE => "none",
+            INPUT_STALE => "command input stale",
+            STATE_NOT_FINITE => "robot state not finite",
+            STATE_IMPLAUSIBLE => "robot state out of range",
+            STATE_STALE => "robot state stale",
+            STATE_GAP => "robot states missing (sequence gap)",
+            STATE_JOINT_COUNT => "robot state joint count",
+            _ => "?",
+        }
     }
 }
 

@@ -113,3 +113,12 @@ pub fn dataset_out(p: &Path, force: bool) -> Result<()> {
     }
     refuse_overwrite(&[p.join("dataset.csv"), p.join("manifest.json")], force, "--out")
 }
+
+/// A command that ran to its end but whose result is a documented non-zero exit code (`bowden
+/// run`: a fault recovered, not recovered, an e-stop); what it found is already printed.
+#[derive(Debug, thiserror::Error)]
+#[error("{why} (exit code {code})")]
+pub struct ExitCode {
+    pub code: u8,
+    pub why: String,
+}

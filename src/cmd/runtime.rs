@@ -66,7 +66,12 @@ pub enum Command {
         quiet: bool,
     },
     /// Start a pipeline (default: configs/sim.toml): every stage its own process, supervised;
-    /// Ctrl-C stops it cleanly and prints the latency summary.
+    /// Ctrl-C stops it cleanly and prints the latency summary and the faults seen.
+    ///
+    /// Exit code: 0 clean run; 3 faults occurred and every stage was running again at the end;
+    /// 4 a fault not recovered (a stage still holding or degraded, a process lost for good, a
+    /// hung stage: the launcher latched the e-stop and halted); 5 an e-stop latched at the end;
+    /// 1 bowden itself failed; 2 usage error.
     Run {
         /// Pipeline config file: found as given, under $BOWDEN_HOME, or built in (`bowden
         /// shipped`); the files it names are found beside it.
@@ -233,7 +238,14 @@ pub fn run(c: Command) -> anyhow::Result<()> {
             if let Some(j) = json_out {
                 std::fs::write(&j, report_json(&report)).with_context(|| format!("writing {}", j.display()))?;
             }
-            Ok(())
+            match report.outcome.exit_code() {
+                0 => Ok(()),
+                code => Err(super::ExitCode {
+                    code,
+                    why: format!("the run ended with outcome: {}", report.outcome.as_str()),
+                }
+                .into()),
+            }
         }
         Command::Replay {
             log,
@@ -281,6 +293,7 @@ pub fn run(c: Command) -> anyhow::Result<()> {
                 prefix,
                 namespace: String::new(),
             };
+            bowden_runtime::cleanup::secure_prefix_files(&settings)?;
             let r = bowden_runtime::cleanup::remove_stale_nodes(&settings).context("cleaning stale nodes")?;
             let files = bowden_runtime::cleanup::remove_prefix_files(&settings).context("removing files")?;
             println!(
@@ -302,12 +315,31 @@ pub fn run(c: Command) -> anyhow::Result<()> {
             } else {
                 SafetyAction::Estop
             };
-            let mut link = SafetyLink::open("estop", &IpcSettings { prefix, namespace }).context("iceoryx2")?;
-            let n = link.send(action)?;
-            println!("{action} sent to {n} subscriber(s)");
-            link.confirm(&stage, action, Duration::from_millis(timeout_ms))?;
-            println!("confirmed by `{stage}`");
-            Ok(())
+            let settings = IpcSettings { prefix, namespace };
+            bowden_runtime::cleanup::secure_prefix_files(&settings)?;
+            // Everything that talks to the running pipeline runs under one time bound: a
+            // damaged iceoryx2 file must give a clear error, never a hang. The worker thread
+            // is abandoned on timeout (the process exits).
+            let (tx, rx) = std::sync::mpsc::channel();
+            let bound = Duration::from_millis(timeout_ms);
+            std::thread::spawn(move || {
+                let r = (|| -> anyhow::Result<usize> {
+                    let mut link = SafetyLink::open("estop", &settings).context("iceoryx2")?;
+                    let n = link.send(action)?;
+                    println!("{action} sent to {n} subscriber(s)");
+                    link.confirm(&stage, action, bound)?;
+                    println!("confirmed by `{stage}`");
+                    Ok(n)
+                })();
+                let _ = tx.send(r);
+            });
+            match rx.recv_timeout(bound + Duration::from_millis(500)) {
+                Ok(r) => r.map(|_| ()),
+                Err(_) => bail!(
+                    "{action}: no answer within {} ms (the prefix's iceoryx2 files may be damaged: `bowden clean --prefix ...` after the pipeline stopped)",
+                    bound.as_millis() + 500
+                ),
+            }
         }
     }
 }
@@ -359,6 +391,9 @@ fn run_pipeline(
                     interrupted = true;
                     break;
                 }
+                // The launcher halted the run (a process lost for good, a stall) and latched
+                // the e-stop: stop everything and report; the outcome says it.
+                Err(bowden_runtime::session::SessionError::Halted { .. }) => break,
                 Err(e) => return Err(e).context("lockstep run"),
             }
             if let Some(b) = &bar {
@@ -393,7 +428,7 @@ fn report_json(r: &RunReport) -> String {
         .iter()
         .map(|(n, s)| match s {
             Some(c) => serde_json::json!({
-                "stage": n, "state": c.state, "cycles": c.cycles, "deadline_misses": c.deadline_misses,
+                "stage": n, "state": c.state, "last_fault": c.last_fault, "cycles": c.cycles, "deadline_misses": c.deadline_misses,
                 "rejected": c.rejected_samples, "faults": c.faults, "latency_p50_ns": c.latency_p50_ns,
                 "latency_p99_ns": c.latency_p99_ns, "latency_p999_ns": c.latency_p999_ns,
                 "latency_max_ns": c.latency_max_ns,
@@ -404,6 +439,10 @@ fn report_json(r: &RunReport) -> String {
     serde_json::to_string_pretty(&serde_json::json!({
         "mode": r.mode, "startup_ms": r.startup.as_secs_f64() * 1e3, "ticks": r.ticks,
         "elapsed_s": r.elapsed.as_secs_f64(), "stages": stages, "events": r.events,
+        "faults": r.faults.iter().map(|f| serde_json::json!({
+            "t_s": f.t_s, "tick": f.tick, "source": f.source, "what": f.what,
+        })).collect::<Vec<_>>(),
+        "halted": r.halted, "outcome": r.outcome.as_str(), "exit_code": r.outcome.exit_code(),
         "stale_nodes_removed_at_start": r.cleanup_at_start.dead_removed,
     }))
     .unwrap_or_default()

@@ -35,6 +35,7 @@ fn chain_with_adapt(prefix: &str, state_dir: &Path, drill: u64, log: Option<&Pat
         r#"
 [[node]]
 name = "adapt"
+on_loss = "continue"      # a helper: the chain goes on with the last good model
 [node.params]
 state_dir = "{state}"
 resume = false
@@ -146,7 +147,7 @@ fn a_killed_adapt_node_does_not_disturb_the_control_chain() {
     let mut opts = SessionOptions::new(LaunchOptions::with_exe(bowden_exe()));
     opts.launch.quiet_children = true;
     opts.taps = vec![services::JOINT_COMMAND.into(), services::MOTOR_COMMAND.into()];
-    opts.stall_timeout = Duration::from_secs(20);
+    opts.stall_timeout = Some(Duration::from_secs(20));
     let mut s = LockstepSession::start(&cfg, opts).unwrap();
     for _ in 0..200 {
         assert!(s.step().unwrap().get::<JointCommand>(services::JOINT_COMMAND).is_some());

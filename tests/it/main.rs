@@ -19,6 +19,7 @@ mod drives;
 mod estimator_cli;
 mod evaluate_session;
 mod evaluate_short;
+mod fail_safe;
 mod feedback_eval;
 mod feedback_lockstep;
 mod hygiene;

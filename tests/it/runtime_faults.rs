@@ -8,7 +8,7 @@ use bowden::registry::REGISTRY;
 use bowden_interfaces::{services, JointCommand, MotorCommand, SafetyCommand};
 use bowden_runtime::config::{Overrides, PipelineConfig};
 use bowden_runtime::launch::LaunchOptions;
-use bowden_runtime::session::{LockstepSession, RealtimeSession, SessionOptions};
+use bowden_runtime::session::{LockstepSession, Outcome, RealtimeSession, SessionError, SessionOptions};
 use bowden_runtime::stage::state;
 use runtime_support::*;
 use std::time::Duration;
@@ -19,7 +19,7 @@ fn session(cfg_text: &str, dir: &std::path::Path) -> LockstepSession {
     let mut opts = SessionOptions::new(LaunchOptions::with_exe(bowden_exe()));
     opts.launch.quiet_children = true;
     opts.taps = vec![services::MOTOR_COMMAND.into(), services::JOINT_COMMAND.into()];
-    opts.stall_timeout = Duration::from_secs(20);
+    opts.stall_timeout = Some(Duration::from_secs(20));
     LockstepSession::start(&cfg, opts).unwrap()
 }
 
@@ -36,49 +36,41 @@ fn pid_of(pids: &[(String, u32)], name: &str) -> u32 {
 }
 
 #[test]
-fn killed_compensator_is_detected_and_actuator_holds() {
+fn killed_compensator_without_restart_halts_the_run_with_an_estop() {
     let dir = tempfile::tempdir().unwrap();
     let (p, _guard_p) = guarded_prefix("kill");
     let mut s = session(&control_chain(&p, "never"), dir.path());
-    let mut last_cmd = None;
     for _ in 0..300 {
         let out = s.step().unwrap();
         let m = out
             .get::<MotorCommand>(services::MOTOR_COMMAND)
             .expect("a motor command every tick");
         assert_eq!(m.flags & MotorCommand::FLAG_HOLD, 0);
-        last_cmd = Some(m);
     }
     kill(pid_of(&s.pids(), "compensator"));
-    let mut events = Vec::new();
-    let mut hold_from = None;
-    for k in 300..400u64 {
-        let out = s.step().unwrap();
-        events.extend(out.events.iter().cloned());
-        assert!(
-            out.get::<JointCommand>(services::JOINT_COMMAND).is_none(),
-            "tick {k}: no compensator, no command"
-        );
-        if let Some(m) = out.get::<MotorCommand>(services::MOTOR_COMMAND) {
-            assert_ne!(m.flags & MotorCommand::FLAG_HOLD, 0, "tick {k}: only hold commands");
-            assert_eq!(m.q_cmd_deg, last_cmd.unwrap().q_cmd_deg, "holds the last safe command");
-            assert_eq!(m.cable_disp_mm, last_cmd.unwrap().cable_disp_mm);
-            hold_from.get_or_insert(k);
-        }
-    }
-    // Detected at once, held after the 20 ms (20-tick) watchdog.
+    // Detected in the tick it happened (or the next): no restart left, so the launcher latches
+    // the e-stop and halts rather than run on without a stage ("the others go on" is gone).
+    let halted = (300..310u64).find_map(|_| match s.step() {
+        Ok(_) => None,
+        Err(SessionError::Halted { tick, reason }) => Some((tick, reason)),
+        Err(e) => panic!("{e}"),
+    });
+    let (tick, reason) = halted.expect("halted");
+    assert!(tick <= 301, "halted at tick {tick}");
     assert!(
-        events
-            .iter()
-            .any(|e| e.contains("`compensator` exited (killed by signal 9)") && e.contains("not restarted")),
-        "{events:?}"
+        reason.contains("compensator") && reason.contains("lost for good"),
+        "{reason}"
     );
-    let h = hold_from.expect("the actuator went to hold");
-    assert!((319..=322).contains(&h), "hold began at tick {h}");
     let report = s.shutdown().unwrap();
-    let act = report.status("actuator").expect("actuator status");
-    assert_eq!(act.faults, 1, "one watchdog fault");
-    assert_eq!(report.status("plant").unwrap().cycles, 400, "the others kept running");
+    assert!(
+        report
+            .events
+            .iter()
+            .any(|e| e.contains("`compensator` exited (killed by signal 9)") && e.contains("e-stop, run halted")),
+        "{:?}",
+        report.events
+    );
+    assert_eq!(report.outcome, Outcome::Unrecovered);
     assert_clean(&p);
 }
 
@@ -190,21 +182,30 @@ fn realtime_kill_is_detected_and_watchdog_holds() {
     let mut s = RealtimeSession::start(&cfg, opts).unwrap();
     s.run_for(Some(Duration::from_millis(700))).unwrap();
     kill(pid_of(&s.pids(), "compensator"));
-    s.run_for(Some(Duration::from_millis(700))).unwrap();
+    // Returns once the launcher halted the run (long before the 10 s).
+    s.run_for(Some(Duration::from_secs(10))).unwrap();
     let report = s.shutdown().unwrap();
     assert!(
         report
             .events
             .iter()
-            .any(|e| e.contains("`compensator` exited (killed by signal 9)")),
+            .any(|e| e.contains("`compensator` exited (killed by signal 9)") && e.contains("e-stop, run halted")),
         "{:?}",
         report.events
     );
-    let act = report.status("actuator").expect("actuator status");
-    assert!(act.faults >= 1, "the watchdog flagged the stale commands: {act:?}");
-    assert_eq!(act.state, state::STOPPED);
-    let traj = report.status("trajectory").unwrap();
-    assert!(traj.cycles > 500, "the trajectory kept running: {traj:?}");
+    assert!(report.halted.is_some());
+    assert!(
+        report.faults.iter().any(|f| f.what.starts_with("e-stop confirmed")),
+        "{:?}",
+        report.faults
+    );
+    // The actuator took the launcher's e-stop before the run stopped.
+    assert!(
+        report.end_states.contains(&("actuator".to_string(), state::ESTOP)),
+        "{:?}",
+        report.end_states
+    );
+    assert_eq!(report.outcome, Outcome::Unrecovered);
     assert_clean(&p);
 }
 

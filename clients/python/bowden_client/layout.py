@@ -103,10 +103,11 @@ class MotorCommand(_Sample):
     FLAG_ESTOP = 1
     FLAG_HOLD = 2
     FLAG_CLAMPED = 4
+    FLAG_FAULT = 8  # holding on an untrusted robot state
     _fields_ = [
         ("header", SampleHeader),
         ("n_cables", u32),
-        ("flags", u32),  # 1 e-stop, 2 hold, 4 clamped
+        ("flags", u32),  # 1 e-stop, 2 hold, 4 clamped, 8 fault
         ("cable_disp_mm", f64 * MAX_CABLES),  # + = pulled in, at the motor end
         ("q_cmd_deg", f64 * MAX_JOINTS),
     ]
@@ -186,11 +187,12 @@ class ComponentStatus(_Sample):
     DEGRADED = 2
     STOPPED = 3
     ESTOP = 4
+    FAULT = 5  # safe hold after a fault, latched
     _fields_ = [
         ("header", SampleHeader),
         ("node_name", ctypes.c_uint8 * 32),  # NUL-padded UTF-8
         ("state", u32),
-        ("_pad", u32),
+        ("last_fault", u32),  # fault code (interfaces/LAYOUT.md), 0 = none
         ("cycles", u64),
         ("deadline_misses", u64),
         ("rejected_samples", u64),

@@ -9,14 +9,20 @@
 //! - **watchdog**: when no valid command arrived for `stale_after_ms`, hold the last safe command
 //!   and flag a fault (once per stale episode); resume when commands come back (or, with
 //!   `latch_on_stale`, only after a release);
-//! - **e-stop latch**: `SafetyCommand::ESTOP` holds the last safe command until `RELEASE`.
+//! - **e-stop latch**: `SafetyCommand::ESTOP` holds the last safe command until `RELEASE`;
+//! - **robot-state monitor** ([`monitor`]): a robot state that is not finite, implausible,
+//!   stale or missing holds the last safe command in the same step (`FaultHold`) until the
+//!   configured resumption (a release, or N good states).
 //!
 //! [`Drive`] is the hardware interface (ros2_control's `write` side): the IPC drive that feeds
 //! the simulated plant process and a real motor driver implement it alike, so they are
 //! interchangeable. Nothing here allocates after construction.
 
-use bowden_interfaces::{MotorCommand, SafetyCommand, MAX_CABLES, MAX_JOINTS};
+pub mod monitor;
+
+use bowden_interfaces::{fault, MotorCommand, PlantState, SafetyCommand, MAX_CABLES, MAX_JOINTS};
 use bowden_kinematics::{Robot, N_CABLES, N_JOINTS};
+use monitor::{MonitorConfig, StateFault, StateMonitor};
 use serde::Deserialize;
 use std::path::Path;
 
@@ -60,6 +66,9 @@ pub struct ActuatorConfig {
     /// Configuration the motors are at before the first command, deg (zeros by default).
     #[serde(default)]
     pub initial_q_deg: Option<Vec<f64>>,
+    /// The robot-state monitor's bounds and resumption (used when the robot reports a state).
+    #[serde(default)]
+    pub robot_state: MonitorConfig,
 }
 
 fn default_stale_ms() -> f64 {
@@ -81,6 +90,7 @@ impl Default for ActuatorConfig {
             max_abs_deg: default_max_abs(),
             latch_on_stale: false,
             initial_q_deg: None,
+            robot_state: MonitorConfig::default(),
         }
     }
 }
@@ -150,6 +160,9 @@ impl ActuatorConfig {
                 format!("must be a positive number, got {}", self.max_abs_deg),
             ));
         }
+        if let Err((field, problem)) = self.robot_state.validate() {
+            return Err(bad(field, problem));
+        }
         if let Some(q) = &self.initial_q_deg {
             if q.len() != N_JOINTS || !q.iter().all(|v| v.is_finite()) {
                 return Err(bad(
@@ -192,6 +205,8 @@ pub enum Rejection {
     },
     /// Ignored while the e-stop is latched (not counted as invalid).
     EStopLatched,
+    /// Ignored while holding after a robot-state fault (not counted as invalid).
+    FaultHold,
 }
 
 /// Operating state.
@@ -203,6 +218,9 @@ pub enum ActuatorState {
     StaleHold,
     /// E-stop latched.
     EStop,
+    /// Holding the last safe command because the robot's state cannot be trusted (see
+    /// [`monitor`]); latched until the configured resumption.
+    FaultHold,
 }
 
 /// Counters, for status samples and tests.
@@ -221,6 +239,14 @@ pub struct ActuatorCounters {
     /// Stale episodes (watchdog faults).
     pub stale_faults: u64,
     pub estops: u64,
+    /// Commands ignored while holding after a robot-state fault.
+    pub ignored_during_fault: u64,
+    /// Times the actuator entered the fault hold.
+    pub fault_holds: u64,
+    /// Releases refused because the robot still reported no valid, fresh state.
+    pub refused_releases: u64,
+    /// Automatic resumptions after N good states.
+    pub auto_resumes: u64,
 }
 
 impl ActuatorCounters {
@@ -276,6 +302,9 @@ pub struct Actuator {
     t_last_cmd_ns: Option<u64>,
     state: ActuatorState,
     counters: ActuatorCounters,
+    monitor: Option<StateMonitor>,
+    monitor_cfg: MonitorConfig,
+    last_fault: u32,
 }
 
 const _: () = assert!(N_JOINTS <= MAX_JOINTS && N_CABLES <= MAX_CABLES);
@@ -307,7 +336,89 @@ impl Actuator {
             t_last_cmd_ns: None,
             state: ActuatorState::Running,
             counters: ActuatorCounters::default(),
+            monitor: None,
+            monitor_cfg: cfg.robot_state.clone(),
+            last_fault: fault::NONE,
         })
+    }
+
+    /// Watches the robot's reported state from now on ([`Actuator::observe_robot`],
+    /// [`Actuator::supervise`]), with the configuration's `robot_state` bounds; the state is
+    /// published every `state_period_ns`.
+    pub fn monitor_robot_state(&mut self, state_period_ns: u64, origin: &str) -> Result<(), ActuatorError> {
+        let m = StateMonitor::new(&self.robot, &self.monitor_cfg, state_period_ns).map_err(|(field, problem)| {
+            ActuatorError::Invalid {
+                origin: origin.to_string(),
+                field,
+                problem,
+            }
+        })?;
+        self.monitor = Some(m);
+        Ok(())
+    }
+
+    /// The robot-state monitor, when enabled.
+    pub fn monitor(&self) -> Option<&StateMonitor> {
+        self.monitor.as_ref()
+    }
+
+    /// The last fault detected (`bowden_interfaces::fault` code, 0 = none).
+    pub fn last_fault(&self) -> u32 {
+        self.last_fault
+    }
+
+    /// A state the robot reported: checked by the monitor; a bad one holds at once.
+    pub fn observe_robot(&mut self, s: &PlantState) -> Option<StateFault> {
+        let m = self.monitor.as_mut()?;
+        let episodes = m.faults();
+        let f = m.observe(s).err()?;
+        let new_episode = m.faults() > episodes;
+        self.enter_fault_hold(f.code, new_episode);
+        Some(f)
+    }
+
+    /// Once per step before the command: the robot state's freshness, and the automatic
+    /// resumption when configured. Returns the fault found now, if any.
+    pub fn supervise(&mut self, t_now_ns: u64) -> Option<StateFault> {
+        let m = self.monitor.as_mut()?;
+        let episodes = m.faults();
+        match m.check_age(t_now_ns) {
+            Err(f) => {
+                let new_episode = m.faults() > episodes;
+                self.enter_fault_hold(f.code, new_episode);
+                Some(f)
+            }
+            Ok(()) => {
+                if self.state == ActuatorState::FaultHold && m.may_resume() {
+                    self.counters.auto_resumes += 1;
+                    self.resume_at(t_now_ns);
+                }
+                None
+            }
+        }
+    }
+
+    /// `new_episode`: this fault began a new stretch of untrusted state (its code is the one
+    /// reported; later faults of the same stretch keep it).
+    fn enter_fault_hold(&mut self, code: u32, new_episode: bool) {
+        if new_episode {
+            self.last_fault = code;
+        }
+        match self.state {
+            ActuatorState::EStop | ActuatorState::FaultHold => {}
+            ActuatorState::Running | ActuatorState::StaleHold => {
+                self.counters.fault_holds += 1;
+                self.state = ActuatorState::FaultHold;
+            }
+        }
+    }
+
+    fn resume_at(&mut self, t_now_ns: u64) {
+        self.state = ActuatorState::Running;
+        // The watchdog restarts from the resumption, not from the last command.
+        if self.t_last_cmd_ns.is_some() {
+            self.t_last_cmd_ns = Some(t_now_ns);
+        }
     }
 
     pub fn state(&self) -> ActuatorState {
@@ -336,6 +447,7 @@ impl Actuator {
             ActuatorState::Running => 0,
             ActuatorState::StaleHold => MotorCommand::FLAG_HOLD,
             ActuatorState::EStop => MotorCommand::FLAG_HOLD | MotorCommand::FLAG_ESTOP,
+            ActuatorState::FaultHold => MotorCommand::FLAG_HOLD | MotorCommand::FLAG_FAULT,
         }
     }
 
@@ -373,6 +485,13 @@ impl Actuator {
             return CommandResult {
                 output: self.hold(t_now_ns),
                 rejection: Some(Rejection::EStopLatched),
+            };
+        }
+        if self.state == ActuatorState::FaultHold {
+            self.counters.ignored_during_fault += 1;
+            return CommandResult {
+                output: self.hold(t_now_ns),
+                rejection: Some(Rejection::FaultHold),
             };
         }
         if let Err(r) = self.validate(q_cmd_deg, n_joints) {
@@ -447,12 +566,13 @@ impl Actuator {
     /// holding (stale or e-stop), `None` while the last command is still fresh (or none came yet).
     pub fn idle(&mut self, t_now_ns: u64) -> Option<ActuatorOutput> {
         match self.state {
-            ActuatorState::EStop | ActuatorState::StaleHold => Some(self.hold(t_now_ns)),
+            ActuatorState::EStop | ActuatorState::StaleHold | ActuatorState::FaultHold => Some(self.hold(t_now_ns)),
             ActuatorState::Running => {
                 let last = self.t_last_cmd_ns?;
                 if t_now_ns.saturating_sub(last) > self.stale_after_ns {
                     self.state = ActuatorState::StaleHold;
                     self.counters.stale_faults += 1;
+                    self.last_fault = fault::INPUT_STALE;
                     Some(self.hold(t_now_ns))
                 } else {
                     None
@@ -472,12 +592,13 @@ impl Actuator {
                 true
             }
             SafetyCommand::RELEASE => {
-                if self.state != ActuatorState::Running {
-                    self.state = ActuatorState::Running;
-                    // The watchdog restarts from the release, not from the last command.
-                    if self.t_last_cmd_ns.is_some() {
-                        self.t_last_cmd_ns = Some(t_now_ns);
-                    }
+                // A person releases; the robot must still report valid, fresh states.
+                let robot_ok = self.monitor.as_ref().is_none_or(|m| m.healthy());
+                match self.state {
+                    ActuatorState::Running => {}
+                    ActuatorState::FaultHold if !robot_ok => self.counters.refused_releases += 1,
+                    ActuatorState::EStop if !robot_ok => self.state = ActuatorState::FaultHold,
+                    _ => self.resume_at(t_now_ns),
                 }
                 true
             }

@@ -5,10 +5,14 @@
 //! `{ serial = "/dev/ttyUSB0" }` also writes them to a motor controller on a serial line
 //! ([`crate::serial`]), and still publishes them (for the recorder, the estimator's IK start and
 //! monitoring), after the controller took them.
+//!
+//! When the pipeline has a producer of `bowden/plant_state` (the simulated plant, or the robot's
+//! driver process reporting its joint angles), the actuator reads it back (a feedback input,
+//! never waited for) and holds on a state it cannot trust ([`crate::monitor`]).
 
 use crate::serial::SerialLineDrive;
 use crate::{Actuator, ActuatorConfig, ActuatorState, Drive, DriveError};
-use bowden_interfaces::{services, JointCommand, MotorCommand, SafetyCommand};
+use bowden_interfaces::{services, JointCommand, MotorCommand, PlantState, SafetyCommand};
 use bowden_runtime::node::{InputDecl, NodeKind, Read, Schedule};
 use bowden_runtime::ports::{Input, Output};
 use bowden_runtime::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
@@ -56,6 +60,8 @@ struct ActuatorStage {
     act: Actuator,
     commands: Input<JointCommand>,
     safety: Input<SafetyCommand>,
+    /// The robot's reported state, when the pipeline has one.
+    robot: Option<Input<PlantState>>,
     /// In write order: the hardware drive (if any), then the IPC drive.
     drives: Vec<Box<dyn Drive>>,
     last_tick: u64,
@@ -68,6 +74,9 @@ pub const KIND: NodeKind = NodeKind {
     inputs: &[
         InputDecl::new(services::JOINT_COMMAND, Read::Tick, 4),
         InputDecl::new(services::SAFETY, Read::Side, 8),
+        // Deep enough for 64 ms of a 1 kHz driver: a late actuator step loses no state (a
+        // lost one is a gap, and a gap is a fault).
+        InputDecl::new(services::PLANT_STATE, Read::Feedback, 64),
     ],
     outputs: &[services::MOTOR_COMMAND],
     schedule: Schedule {
@@ -99,7 +108,26 @@ fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
     };
     let robot = bowden_kinematics::Robot::load_or_paper(env.robot_file().as_deref()).map_err(|e| env.error(e))?;
     let origin = format!("{}: [node.params] of `{}`", env.pipeline.origin, env.spec.name);
-    let act = Actuator::new(&robot, &cfg, &origin).map_err(|e| env.error(e))?;
+    let mut act = Actuator::new(&robot, &cfg, &origin).map_err(|e| env.error(e))?;
+    let robot_state = match env.pipeline.producer_of(services::PLANT_STATE) {
+        Some(i) => {
+            // How often the state comes: its producer's own period, never faster than a tick.
+            let producer = &env.pipeline.stages[i];
+            let own = env
+                .pipeline
+                .processes
+                .iter()
+                .find(|p| p.name == producer.process)
+                .and_then(|p| match p.activation {
+                    bowden_runtime::config::Activation::Periodic { period_ns, .. } => Some(period_ns),
+                    bowden_runtime::config::Activation::Event { .. } => None,
+                });
+            let period_ns = own.unwrap_or(0).max(env.pipeline.period_ns());
+            act.monitor_robot_state(period_ns, &origin).map_err(|e| env.error(e))?;
+            Some(env.input(services::PLANT_STATE)?)
+        }
+        None => None,
+    };
     let mut drives: Vec<Box<dyn Drive>> = Vec::with_capacity(2);
     if let DriveParam::Serial { serial } = &drive_param {
         drives.push(Box::new(
@@ -116,6 +144,7 @@ fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         act,
         commands: env.input(services::JOINT_COMMAND)?,
         safety: env.input(services::SAFETY)?,
+        robot: robot_state,
         drives,
         last_tick: 0,
     }))
@@ -141,6 +170,13 @@ impl Stage for ActuatorStage {
         while let Some(s) = self.safety.next(cx) {
             self.act.safety(&s, now);
         }
+        // The robot's state before the command: a fault found now holds in this very step.
+        if let Some(robot) = self.robot.as_mut() {
+            while let Some(s) = robot.next(cx) {
+                self.act.observe_robot(&s);
+            }
+            self.act.supervise(now);
+        }
         if let Some(c) = self.commands.next(cx) {
             self.last_tick = c.header.tick;
             let r = self.act.command(&c.q_cmd_deg, c.n_joints, now);
@@ -163,10 +199,12 @@ impl Stage for ActuatorStage {
     fn counters(&self) -> StageCounters {
         let c = self.act.counters();
         StageCounters {
-            rejected: c.rejected(),
-            faults: c.stale_faults,
+            rejected: c.rejected() + self.act.monitor().map_or(0, |m| m.rejected()),
+            faults: c.stale_faults + self.act.monitor().map_or(0, |m| m.faults()),
             degraded: self.act.state() == ActuatorState::StaleHold,
             estop: self.act.state() == ActuatorState::EStop,
+            fault_hold: self.act.state() == ActuatorState::FaultHold,
+            last_fault: self.act.last_fault(),
         }
     }
 
@@ -186,7 +224,7 @@ impl Stage for ActuatorStage {
 
     fn summary(&self) -> Vec<String> {
         let c = self.act.counters();
-        vec![format!(
+        let mut v = vec![format!(
             "actuator: state {:?}, commands {}, rejected {} (nan {}, impossible {}, joints {}, range {}), clamped {}, rate-limited {}, stale faults {}, e-stops {}",
             self.act.state(),
             c.commands,
@@ -199,6 +237,26 @@ impl Stage for ActuatorStage {
             c.rate_limited,
             c.stale_faults,
             c.estops
-        )]
+        )];
+        if let Some(m) = self.act.monitor() {
+            let r = m.counters();
+            v.push(format!(
+                "actuator: robot states {}, faults {} (not finite {}, out of range {}, joint count {}, stale {}, missing {}, publisher restarts {}), fault holds {}, commands ignored in fault hold {}, releases refused {}, automatic resumptions {}, last fault: {}",
+                r.states,
+                m.faults(),
+                r.not_finite,
+                r.implausible,
+                r.joint_count,
+                r.stale,
+                r.missing,
+                r.restarts,
+                c.fault_holds,
+                c.ignored_during_fault,
+                c.refused_releases,
+                c.auto_resumes,
+                bowden_interfaces::fault::name(self.act.last_fault())
+            ));
+        }
+        v
     }
 }

@@ -599,7 +599,7 @@ impl Stage for BridgeStage {
             rejected: sum(|s| &s.rejected),
             faults: self.faults + sum(|s| &s.publish_errors),
             degraded: self.peers.is_empty(),
-            estop: false,
+            ..Default::default()
         }
     }
 

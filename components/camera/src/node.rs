@@ -93,6 +93,8 @@ struct CameraStage {
     render_errors: u64,
     record_errors: u64,
     first_error: Option<String>,
+    /// The last robot-side fault seen (`bowden_interfaces::fault` code).
+    last_fault: u32,
 }
 
 /// The `camera` node kind: its declared ports and schedule (see `bowden_runtime::node`).
@@ -173,14 +175,15 @@ fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         render_errors: 0,
         record_errors: 0,
         first_error: None,
+        last_fault: bowden_interfaces::fault::NONE,
     }))
 }
 
 impl Stage for CameraStage {
     fn step(&mut self, cx: &StepCx) -> Result<StepReport, StageError> {
         if let Some(s) = self.input.next(cx) {
-            let plausible = bowden_interfaces::finite_joints::<5>(&s.q_phy_deg, s.n_joints)
-                .filter(|q| self.robot.check_plausible(q, self.range_margin_deg).is_ok());
+            let finite = bowden_interfaces::finite_joints::<5>(&s.q_phy_deg, s.n_joints);
+            let plausible = finite.filter(|q| self.robot.check_plausible(q, self.range_margin_deg).is_ok());
             match plausible {
                 Some(q) => {
                     self.q = Some(q);
@@ -191,6 +194,11 @@ impl Stage for CameraStage {
                     // Never render the last good pose as if the robot still were there.
                     self.rejected += 1;
                     self.q = None;
+                    self.last_fault = if finite.is_some() {
+                        bowden_interfaces::fault::STATE_IMPLAUSIBLE
+                    } else {
+                        bowden_interfaces::fault::STATE_NOT_FINITE
+                    };
                 }
             }
         }
@@ -210,6 +218,7 @@ impl Stage for CameraStage {
         if stale {
             // The robot stopped reporting: this exposure is skipped, not filled with the past.
             self.stale_skips += 1;
+            self.last_fault = bowden_interfaces::fault::STATE_STALE;
             return Ok(StepReport::IDLE);
         }
         let tick = cx.out_tick(self.state_tick);
@@ -254,10 +263,11 @@ impl Stage for CameraStage {
             rejected: self.rejected,
             // A frame slot skipped on a stale robot state is a fault of the robot side.
             faults: self.render_errors + self.record_errors + self.stale_skips,
+            last_fault: self.last_fault,
             degraded: (self.source.needs_state() && self.q.is_none())
                 || self.stale
                 || !self.source.has_frame(self.frames),
-            estop: false,
+            ..Default::default()
         }
     }
 

@@ -107,7 +107,7 @@ impl Stage for EstimatorStage {
             rejected: self.bad_frames,
             faults: 0,
             degraded: false,
-            estop: false,
+            ..Default::default()
         }
     }
 

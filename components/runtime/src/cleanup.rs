@@ -115,3 +115,55 @@ pub fn remove_prefix_files(settings: &IpcSettings) -> Result<usize, PortError> {
     }
     Ok(n)
 }
+
+/// A prefix file another user owns: a pipeline must not share its shared memory with it.
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "{path}: owned by uid {owner}, not by this user (uid {me}): another user created or took a file \
+     of prefix `{prefix}`; refusing to run the pipeline over it (choose another prefix, or have the \
+     file removed: see docs/deployment.md, \"Security\")"
+)]
+pub struct ForeignFile {
+    pub path: String,
+    pub prefix: String,
+    pub owner: u32,
+    pub me: u32,
+}
+
+/// Keeps the prefix's shared memory private to this user. iceoryx2 0.10 creates its per-prefix
+/// node-management file (`…global_mgmt`) with mode 0666 whatever the umask; any local user
+/// could then empty it and make `bowden estop` and the launcher's stale-node clean-up hang.
+/// This refuses a prefix with a file of another user (a squatter who created it first) and
+/// takes group and other access away from ours. Returns how many modes were changed.
+///
+/// Call it before the first node of a run exists (to find squatters) and right after (the
+/// management file is created with the first node): the window in between is the node's
+/// creation, and an attacker who opened the file in it keeps the descriptor — the complete fix
+/// is a private /dev/shm (the systemd unit's `PrivateIPC`/`TemporaryFileSystem`, see
+/// docs/deployment.md).
+pub fn secure_prefix_files(settings: &IpcSettings) -> Result<usize, ForeignFile> {
+    use std::os::unix::fs::{MetadataExt, PermissionsExt};
+    // SAFETY: geteuid has no preconditions.
+    let me = unsafe { libc::geteuid() };
+    let mut changed = 0;
+    for f in prefix_files(settings) {
+        let Ok(meta) = std::fs::symlink_metadata(&f) else {
+            continue;
+        };
+        if meta.uid() != me {
+            return Err(ForeignFile {
+                path: f.display().to_string(),
+                prefix: settings.prefix.clone(),
+                owner: meta.uid(),
+                me,
+            });
+        }
+        if meta.file_type().is_file() && meta.mode() & 0o077 != 0 {
+            let mode = meta.mode() & 0o700;
+            if std::fs::set_permissions(&f, std::fs::Permissions::from_mode(mode)).is_ok() {
+                changed += 1;
+            }
+        }
+    }
+    Ok(changed)
+}

@@ -81,6 +81,19 @@ pub enum RestartPolicy {
     Always,
 }
 
+/// What the launcher does when a process is lost for good (exited with no restart left).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OnLoss {
+    /// Latch the e-stop and halt the run (not recovered): a pipeline without its driver,
+    /// controller or command source must not go on.
+    #[default]
+    Halt,
+    /// Report it and go on: a helper whose loss leaves the robot safe (online adaptation keeps
+    /// the last good model; a recorder's file ends early).
+    Continue,
+}
+
 /// `[runtime]`.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -105,6 +118,16 @@ pub struct RuntimeSection {
     /// Real time: how often every stage publishes its `ComponentStatus`.
     #[serde(default = "default_status_period_ms")]
     pub status_period_ms: u64,
+    /// Real time: a stage whose last status is older than this is hung: the launcher latches
+    /// the e-stop and halts the run. Default 3 × `status_period_ms`. (The 1 kHz chain's own
+    /// bounds are tighter: the actuator's command watchdog and robot-state age.)
+    #[serde(default)]
+    pub liveness_ms: Option<u64>,
+    /// Lockstep: a tick without progress for this long halts the run (a hung process). Wall
+    /// time, not simulated: a lockstep tick takes as long as its computation, and a loaded
+    /// 2-core machine running many pipelines at once has taken seconds for one.
+    #[serde(default = "default_stall_timeout_ms")]
+    pub stall_timeout_ms: u64,
     /// Robot description for the stages that need one (relative to this file); the shipped
     /// robot when absent.
     #[serde(default)]
@@ -125,6 +148,9 @@ fn default_shutdown_timeout_ms() -> u64 {
 }
 fn default_status_period_ms() -> u64 {
     1_000
+}
+fn default_stall_timeout_ms() -> u64 {
+    10_000
 }
 
 /// One `[[node]]`: a stage of the pipeline.
@@ -157,6 +183,9 @@ pub struct NodeSection {
     pub restart: RestartPolicy,
     #[serde(default = "default_max_restarts")]
     pub max_restarts: u32,
+    /// What losing this process for good (exited, no restart left) does to the run.
+    #[serde(default)]
+    pub on_loss: OnLoss,
     /// Real-time placement of the process (first stage of a process decides).
     #[serde(default)]
     pub rt: Option<RtSettings>,
@@ -239,6 +268,7 @@ pub struct ProcessSpec {
     pub exec: Option<Vec<String>>,
     pub restart: RestartPolicy,
     pub max_restarts: u32,
+    pub on_loss: OnLoss,
     pub rt: Option<RtSettings>,
     pub activation: Activation,
     /// Whether the launcher waits for this process's status samples (always for built-in nodes).
@@ -443,6 +473,20 @@ impl PipelineConfig {
                 return Err(bad(
                     "runtime.seconds".into(),
                     format!("must be a positive number, got {s}"),
+                ));
+            }
+        }
+        if rt.stall_timeout_ms == 0 {
+            return Err(bad("runtime.stall_timeout_ms".into(), "must be positive".into()));
+        }
+        if let Some(l) = rt.liveness_ms {
+            if l <= rt.status_period_ms {
+                return Err(bad(
+                    "runtime.liveness_ms".into(),
+                    format!(
+                        "must be longer than runtime.status_period_ms ({}), got {l}",
+                        rt.status_period_ms
+                    ),
                 ));
             }
         }
@@ -692,6 +736,7 @@ impl PipelineConfig {
                 exec: first.exec.clone(),
                 restart: first.restart,
                 max_restarts: first.max_restarts,
+                on_loss: first.on_loss,
                 rt: first.rt.clone(),
                 activation,
                 reports_status: first.exec.is_none() || first.reports_status.unwrap_or(false),
@@ -725,6 +770,11 @@ impl PipelineConfig {
 
     pub fn period_ns(&self) -> u64 {
         self.runtime.period_us * 1000
+    }
+
+    /// Real time: the launcher's bound on a stage's silence (`[runtime] liveness_ms`).
+    pub fn liveness_ms(&self) -> u64 {
+        self.runtime.liveness_ms.unwrap_or(3 * self.runtime.status_period_ms)
     }
 
     /// `p` relative to the config's directory (absolute paths unchanged).

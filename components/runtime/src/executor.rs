@@ -399,19 +399,10 @@ impl Executor {
         slot.stats.rejected = c.rejected;
         slot.stats.faults = c.faults;
         let p = slot.stats.reported();
-        let state = if st == state::RUNNING {
-            if c.estop {
-                state::ESTOP
-            } else if c.degraded {
-                state::DEGRADED
-            } else {
-                state::RUNNING
-            }
-        } else {
-            st
-        };
+        let state = if st == state::RUNNING { state::of(&c) } else { st };
         let mut s = ComponentStatus {
             state,
+            last_fault: c.last_fault,
             cycles: slot.stats.cycles,
             deadline_misses: slot.stats.deadline_misses + slot.stats.release_misses,
             rejected_samples: c.rejected,
@@ -602,14 +593,7 @@ impl Executor {
         if now < *next_status {
             let mut changed = false;
             for i in 0..self.slots.len() {
-                let c = self.slots[i].stage.counters();
-                let st = if c.estop {
-                    state::ESTOP
-                } else if c.degraded {
-                    state::DEGRADED
-                } else {
-                    state::RUNNING
-                };
+                let st = state::of(&self.slots[i].stage.counters());
                 if st != self.slots[i].published_state {
                     self.publish_status(i, tick, now, state::RUNNING)?;
                     changed = true;
@@ -680,24 +664,34 @@ impl Executor {
                     }
                 }
             }
-            Activation::Event { timeout_ns } => loop {
-                let a0 = alloc::thread_counts();
-                let deadline = timeout_ns.map(|t| monotonic_ns() + t);
-                let wake = self
-                    .reactor
-                    .wait(deadline)
-                    .map_err(|e| os_err(&self.process, "epoll wait", e))?;
-                self.drain_waiters();
-                if wake.terminate || self.shutdown_requested() {
-                    return Ok(());
+            Activation::Event { timeout_ns } => {
+                // The stage's own watchdog deadline, re-armed after each step.
+                let mut step_deadline = timeout_ns.map(|t| monotonic_ns() + t);
+                loop {
+                    let a0 = alloc::thread_counts();
+                    // Also wake for the status period: a process whose inputs went quiet still
+                    // reports, so the launcher can tell a quiet stage from a hung one.
+                    let deadline = step_deadline.map_or(next_status, |d| d.min(next_status));
+                    let wake = self
+                        .reactor
+                        .wait(Some(deadline))
+                        .map_err(|e| os_err(&self.process, "epoll wait", e))?;
+                    self.drain_waiters();
+                    if wake.terminate || self.shutdown_requested() {
+                        return Ok(());
+                    }
+                    let now = monotonic_ns();
+                    let status_only = wake.ready_mask == 0 && step_deadline.is_none_or(|d| now < d);
+                    if !status_only {
+                        let cx = StepCx::realtime(cycle, now, 0, now);
+                        self.step_all(&cx)?;
+                        cycle += 1;
+                        step_deadline = timeout_ns.map(|t| monotonic_ns() + t);
+                    }
+                    self.maybe_status(monotonic_ns(), &mut next_status, cycle)?;
+                    self.audit.record(alloc::thread_counts().since(&a0));
                 }
-                let now = monotonic_ns();
-                let cx = StepCx::realtime(cycle, now, 0, now);
-                self.step_all(&cx)?;
-                self.maybe_status(monotonic_ns(), &mut next_status, cycle)?;
-                self.audit.record(alloc::thread_counts().since(&a0));
-                cycle += 1;
-            },
+            }
         }
     }
 }

@@ -779,7 +779,7 @@ impl Stage for RecorderStage {
             rejected: 0,
             faults: self.gaps + self.write_errors,
             degraded: self.write_errors > 0,
-            estop: false,
+            ..Default::default()
         }
     }
 

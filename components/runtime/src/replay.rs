@@ -185,6 +185,9 @@ pub struct ServiceSummary {
     pub last_tick: Option<u64>,
     /// Missing sequence numbers (samples lost before recording).
     pub seq_gaps: u64,
+    /// Times the publisher started again (its sequence numbers went back: a restarted
+    /// process, whose samples while it was down are lost with no gap in the numbers).
+    pub publisher_restarts: u64,
     pub t_span_s: f64,
     pub bytes: u64,
 }
@@ -224,7 +227,7 @@ impl LogSummary {
         );
         let _ = writeln!(
             s,
-            "| service | records | ticks | seq gaps | span (s) | bytes |\n|---|---:|---|---:|---:|---:|"
+            "| service | records | ticks | seq gaps | publisher restarts | span (s) | bytes |\n|---|---:|---|---:|---:|---:|---:|"
         );
         for v in &self.services {
             let ticks = match (v.first_tick, v.last_tick) {
@@ -233,8 +236,8 @@ impl LogSummary {
             };
             let _ = writeln!(
                 s,
-                "| {} | {} | {} | {} | {:.3} | {} |",
-                v.service, v.records, ticks, v.seq_gaps, v.t_span_s, v.bytes
+                "| {} | {} | {} | {} | {} | {:.3} | {} |",
+                v.service, v.records, ticks, v.seq_gaps, v.publisher_restarts, v.t_span_s, v.bytes
             );
         }
         if !self.plant_mean_abs_error_deg.is_empty() {
@@ -310,6 +313,8 @@ pub fn summarize(log: &Path) -> Result<LogSummary, LogError> {
             if let Some(l) = a.last_seq {
                 if e.seq > l + 1 {
                     sv.seq_gaps += e.seq - l - 1;
+                } else if e.seq <= l {
+                    sv.publisher_restarts += 1;
                 }
             }
             a.last_seq = Some(e.seq);

@@ -33,18 +33,27 @@
 //! [`LockstepSession::step_with`] with each tick's sample.
 //!
 //! A child that dies mid-run is detected (its exit status is in [`TickOutputs::events`]); its
-//! stages are declared stopped on its behalf so the others go on (the actuator's watchdog then
-//! holds the last safe command), its iceoryx2 resources are removed, and it is restarted
-//! between two ticks if its restart policy says so.
+//! stages are declared stopped on its behalf, its iceoryx2 resources are removed, and it is
+//! restarted between two ticks if its restart policy says so. A process lost for good (no
+//! restart left) or a tick without progress within `[runtime] stall_timeout_ms` halts the run:
+//! the launcher sends an e-stop and [`LockstepSession::step`] returns [`SessionError::Halted`];
+//! [`LockstepSession::shutdown`] still stops everything and reports.
+//!
+//! # Faults and outcome
+//!
+//! The launcher watches every stage's status samples: a rise of its fault counter, a change to
+//! degraded, fault hold or e-stop, and back, are [`FaultRecord`]s with their time, and the run's
+//! [`Outcome`] (clean, recovered, not recovered, e-stop) follows from them and from the states at
+//! the end; `bowden run` exits with [`Outcome::exit_code`].
 
 use crate::cleanup::{self, CleanupReport};
-use crate::config::PipelineConfig;
+use crate::config::{OnLoss, PipelineConfig};
 use crate::launch::{LaunchOptions, SpawnError, Supervisor};
 use crate::ports::{visit_payload, Input, Message, Output, PayloadVisitor, PortContext, PortError, Waiter, Wakeup};
 use crate::stage::state;
 use crate::stats::fmt_ns;
 use crate::sys::{self, monotonic_ns, Reactor};
-use bowden_interfaces::{services, ClockTick, ComponentStatus};
+use bowden_interfaces::{fault, services, ClockTick, ComponentStatus, SafetyCommand};
 use std::time::{Duration, Instant};
 
 /// Why a session failed.
@@ -58,12 +67,18 @@ pub enum SessionError {
     Startup(String),
     #[error("tick {tick}: no progress for {waited_ms} ms, waiting for: {waiting}")]
     Stalled { tick: u64, waited_ms: u64, waiting: String },
+    /// The launcher halted the run (a process lost for good, a stall): e-stop sent; call
+    /// `shutdown` for the report.
+    #[error("run halted at tick {tick}: {reason}")]
+    Halted { tick: u64, reason: String },
     #[error("interrupted by signal")]
     Interrupted,
     #[error("{0}")]
     Usage(String),
     #[error("launcher: {0}")]
     Os(String),
+    #[error(transparent)]
+    ForeignFile(#[from] cleanup::ForeignFile),
 }
 
 /// Options of a session.
@@ -78,8 +93,9 @@ pub struct SessionOptions {
     pub source: Option<String>,
     /// Print start-up, events and the summary to stderr.
     pub verbose: bool,
-    /// Lockstep: give up on a tick after this long without progress.
-    pub stall_timeout: Duration,
+    /// Lockstep: halt after this long without progress in a tick (`None`: the config's
+    /// `[runtime] stall_timeout_ms`).
+    pub stall_timeout: Option<Duration>,
     /// Remove the prefix's remaining files at the end if no node is left (a per-run prefix).
     pub remove_prefix_files: bool,
     /// Real time: the run lasts until SIGINT/SIGTERM (for the start-up message only).
@@ -93,7 +109,7 @@ impl SessionOptions {
             taps: Vec::new(),
             source: None,
             verbose: false,
-            stall_timeout: Duration::from_secs(60),
+            stall_timeout: None,
             remove_prefix_files: true,
             until_signal: false,
         }
@@ -136,16 +152,71 @@ pub struct RunReport {
     pub cleanup_at_start: CleanupReport,
     pub forced_stops: Vec<(String, &'static str)>,
     pub files_removed: usize,
+    /// Every fault the launcher saw, in time order (and the recoveries from them).
+    pub faults: Vec<FaultRecord>,
+    /// Why the launcher halted the run, when it did.
+    pub halted: Option<String>,
+    /// How the run ended.
+    pub outcome: Outcome,
+    /// Every status-reporting stage's state at the end of the run, before shutdown.
+    pub end_states: Vec<(String, u32)>,
 }
 
-fn state_name(s: u32) -> &'static str {
-    match s {
-        state::STARTING => "starting",
-        state::RUNNING => "running",
-        state::DEGRADED => "degraded",
-        state::STOPPED => "stopped",
-        state::ESTOP => "e-stop",
-        _ => "?",
+/// How a run ended, for its exit code.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Outcome {
+    /// No fault.
+    #[default]
+    Clean,
+    /// Faults occurred; every stage was running again at the end.
+    Recovered,
+    /// A fault was still present at the end (a stage holding or degraded), or the launcher
+    /// halted the run (a process lost for good, a stall).
+    Unrecovered,
+    /// An e-stop was latched at the end (and nothing else was unrecovered).
+    EStop,
+}
+
+impl Outcome {
+    /// `bowden run`'s exit code: 0 clean, 3 fault recovered, 4 fault not recovered, 5 e-stop
+    /// latched (1 is an error that stopped bowden itself, 2 a usage error).
+    pub fn exit_code(self) -> u8 {
+        match self {
+            Outcome::Clean => 0,
+            Outcome::Recovered => 3,
+            Outcome::Unrecovered => 4,
+            Outcome::EStop => 5,
+        }
+    }
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Outcome::Clean => "clean",
+            Outcome::Recovered => "fault recovered",
+            Outcome::Unrecovered => "fault not recovered",
+            Outcome::EStop => "e-stop latched",
+        }
+    }
+}
+
+/// One fault (or recovery) the launcher saw.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FaultRecord {
+    /// Run time, s: simulated in lockstep, since the common start in real time.
+    pub t_s: f64,
+    /// Lockstep tick.
+    pub tick: Option<u64>,
+    /// Stage or process.
+    pub source: String,
+    pub what: String,
+}
+
+impl std::fmt::Display for FaultRecord {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.tick {
+            Some(k) => write!(f, "t {:.3} s (tick {k}): {}: {}", self.t_s, self.source, self.what),
+            None => write!(f, "t {:.3} s: {}: {}", self.t_s, self.source, self.what),
+        }
     }
 }
 
@@ -178,10 +249,18 @@ impl RunReport {
             match st {
                 Some(c) => {
                     let lat = |v: u64| if v == 0 { "-".to_string() } else { fmt_ns(v) };
+                    // The final state, and what it was at the end of the run when that was
+                    // not plain running ("stopped after fault hold").
+                    let end = self.end_states.iter().find(|(n, _)| n == name).map(|e| e.1);
+                    let shown = match end {
+                        Some(e) if e != c.state && e != state::RUNNING => {
+                            format!("{} after {}", state::name(c.state), state::name(e))
+                        }
+                        _ => state::name(c.state).to_string(),
+                    };
                     let _ = writeln!(
                         s,
-                        "| {name} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-                        state_name(c.state),
+                        "| {name} | {shown} | {} | {} | {} | {} | {} | {} | {} | {} |",
                         c.cycles,
                         c.deadline_misses,
                         c.rejected_samples,
@@ -203,7 +282,32 @@ impl RunReport {
         for (p, how) in &self.forced_stops {
             let _ = writeln!(s, "process `{p}` did not exit in time: {how}");
         }
+        for f in &self.faults {
+            let _ = writeln!(s, "fault: {f}");
+        }
+        if let Some(h) = &self.halted {
+            let _ = writeln!(s, "halted: {h}");
+        }
+        let _ = writeln!(
+            s,
+            "outcome: {} (exit code {})",
+            self.outcome.as_str(),
+            self.outcome.exit_code()
+        );
         s
+    }
+
+    /// The outcome from the faults seen and the stages' states at the end (before shutdown).
+    fn classify(&mut self, states: &[u32]) {
+        self.outcome = if self.halted.is_some() || states.iter().any(|&s| s == state::FAULT || s == state::DEGRADED) {
+            Outcome::Unrecovered
+        } else if states.contains(&state::ESTOP) {
+            Outcome::EStop
+        } else if !self.faults.is_empty() {
+            Outcome::Recovered
+        } else {
+            Outcome::Clean
+        };
     }
 }
 
@@ -216,6 +320,18 @@ struct StageView {
     started: bool,
     done: Option<u64>,
     last: Option<ComponentStatus>,
+    /// The state and fault count last seen while the run was watched (not during shutdown).
+    seen_state: u32,
+    seen_faults: u64,
+    /// Fault counts are reported at most once a second per stage (a camera counts every
+    /// skipped frame): the time of the last such record and what was counted since.
+    counted_at_s: Option<f64>,
+    counted_since: u64,
+    last_t_s: f64,
+    /// When its last status arrived (real-time liveness).
+    seen_at: Instant,
+    /// Reads `bowden/safety` (an actuator): confirms an e-stop.
+    takes_estop: bool,
 }
 
 /// The launcher's iceoryx2 side: clock, statuses, wake-ups.
@@ -230,6 +346,13 @@ struct Core {
     out_wakeups: Vec<Vec<Wakeup>>,
     reactor: Reactor,
     ports: PortContext,
+    safety_out: Output<SafetyCommand>,
+    safety_wakeup: Wakeup,
+    /// Record faults from statuses (off during shutdown: stopping stages are not faults).
+    watch: bool,
+    /// Subtracted from a status's `t_origin_ns` for the run time (the real-time start).
+    t0_ns: u64,
+    faults: Vec<FaultRecord>,
 }
 
 impl Core {
@@ -258,12 +381,24 @@ impl Core {
                 started: false,
                 done: None,
                 last: None,
+                seen_state: state::RUNNING,
+                seen_faults: 0,
+                counted_at_s: None,
+                counted_since: 0,
+                last_t_s: 0.0,
+                seen_at: Instant::now(),
+                takes_estop: s.reads.iter().any(|(svc, _)| svc == services::SAFETY),
             });
         }
         Ok(Self {
             stages,
             clock_out: ports.output::<ClockTick>(services::CLOCK)?,
             clock_wakeup: ports.notifier(services::CLOCK)?,
+            safety_out: ports.output::<SafetyCommand>(services::SAFETY)?,
+            safety_wakeup: ports.notifier(services::SAFETY)?,
+            watch: false,
+            t0_ns: 0,
+            faults: Vec::new(),
             status_out: ports.output::<ComponentStatus>(services::COMPONENT_STATUS)?,
             status_in,
             status_waiter,
@@ -280,6 +415,42 @@ impl Core {
             let Some(v) = self.stages.iter_mut().find(|v| v.name == name) else {
                 continue;
             };
+            v.seen_at = Instant::now();
+            if self.watch && st.state != state::STOPPED && st.state != state::STARTING {
+                let t_s = st.header.t_origin_ns.saturating_sub(self.t0_ns) as f64 / 1e9;
+                let tick = (self.t0_ns == 0).then_some(st.header.tick);
+                let mut record = |what: String| {
+                    self.faults.push(FaultRecord {
+                        t_s,
+                        tick,
+                        source: v.name.clone(),
+                        what,
+                    })
+                };
+                v.last_t_s = t_s;
+                if st.faults > v.seen_faults {
+                    v.counted_since += st.faults - v.seen_faults;
+                    if v.counted_at_s.is_none_or(|t| t_s - t >= 1.0) {
+                        record(format!(
+                            "{} fault(s) counted (last: {})",
+                            v.counted_since,
+                            fault::name(st.last_fault)
+                        ));
+                        v.counted_at_s = Some(t_s);
+                        v.counted_since = 0;
+                    }
+                }
+                if st.state != v.seen_state {
+                    let what = match st.state {
+                        state::RUNNING => format!("running again (was {})", state::name(v.seen_state)),
+                        state::FAULT => format!("safe hold: {}", fault::name(st.last_fault)),
+                        s => state::name(s).to_string(),
+                    };
+                    record(what);
+                }
+                v.seen_faults = v.seen_faults.max(st.faults);
+                v.seen_state = st.state;
+            }
             // Our own "stopped on behalf of" samples come back too: they agree with our view.
             match st.state {
                 state::STOPPED => v.alive = false,
@@ -343,6 +514,59 @@ impl Core {
     fn statuses(&self) -> Vec<(String, Option<ComponentStatus>)> {
         self.stages.iter().map(|v| (v.name.clone(), v.last)).collect()
     }
+
+    /// Latches the e-stop of every actuator (the launcher's own reaction to a halt).
+    fn estop(&mut self, tick: u64, t_ns: u64) -> Result<(), SessionError> {
+        self.safety_out.publish(
+            tick,
+            t_ns,
+            SafetyCommand {
+                command: SafetyCommand::ESTOP,
+                ..Default::default()
+            },
+        )?;
+        self.safety_wakeup.notify()?;
+        Ok(())
+    }
+
+    fn record(&mut self, t_s: f64, tick: Option<u64>, source: &str, what: String) {
+        self.faults.push(FaultRecord {
+            t_s,
+            tick,
+            source: source.to_string(),
+            what,
+        });
+    }
+
+    /// Stops watching (shutdown begins) and hands the faults and end states to the report.
+    fn close(&mut self, report: &mut RunReport) {
+        self.drain_statuses();
+        self.watch = false;
+        for v in self.stages.iter_mut().filter(|v| v.counted_since > 0) {
+            self.faults.push(FaultRecord {
+                t_s: v.last_t_s,
+                tick: None,
+                source: v.name.clone(),
+                what: format!("{} more fault(s) counted by the end", v.counted_since),
+            });
+            v.counted_since = 0;
+        }
+        self.faults.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
+        report.end_states = self
+            .stages
+            .iter()
+            .filter(|v| v.tracked)
+            .map(|v| (v.name.clone(), if v.started { v.seen_state } else { state::STARTING }))
+            .collect();
+        report.faults = std::mem::take(&mut self.faults);
+        let states: Vec<u32> = self
+            .stages
+            .iter()
+            .filter(|v| v.tracked && v.started)
+            .map(|v| v.seen_state)
+            .collect();
+        report.classify(&states);
+    }
 }
 
 /// Removes what a session leaves in shared memory when it is dropped without `shutdown` (an
@@ -372,6 +596,8 @@ fn start_common(
 ) -> Result<(Supervisor, Core, CleanupReport, Duration), SessionError> {
     sys::install_termination_handlers().map_err(|e| SessionError::Os(format!("signal handlers: {e}")))?;
     let ipc = cfg.ipc();
+    // No file of the prefix may belong to another user (see `secure_prefix_files`).
+    cleanup::secure_prefix_files(&ipc)?;
     // Before our own node exists (iceoryx2 would clean silently on node creation): so the
     // report says what a previous, killed run left behind.
     let cleanup_at_start = cleanup::remove_stale_nodes(&ipc)?;
@@ -382,6 +608,15 @@ fn start_common(
         );
     }
     let mut core = Core::new(cfg)?;
+    // Our node created the management file (mode 0666 in iceoryx2 0.10): make it ours alone
+    // before any child, estop or client opens it.
+    let made_private = cleanup::secure_prefix_files(&ipc)?;
+    if opts.verbose && made_private > 0 {
+        eprintln!(
+            "launcher: {made_private} iceoryx2 file(s) of prefix `{}` made private (mode 0600)",
+            ipc.prefix
+        );
+    }
     let mut sup = Supervisor::new(cfg, opts.launch.clone());
     let t0 = Instant::now();
     // A failed or interrupted start-up stops what was started and leaves nothing behind.
@@ -561,6 +796,8 @@ impl LockstepSession {
             }
             None => None,
         };
+        let mut core = core;
+        core.watch = true;
         if opts.verbose {
             eprintln!(
                 "launcher: {} process(es) ready in {} ms (lockstep, prefix `{}`)",
@@ -644,6 +881,12 @@ impl LockstepSession {
             t_sim_ns: t_sim,
             ..Default::default()
         };
+        if let Some(reason) = &self.report.halted {
+            return Err(SessionError::Halted {
+                tick: k,
+                reason: reason.clone(),
+            });
+        }
         // Restarts happen between ticks, so a new instance joins at a tick boundary.
         for i in std::mem::take(&mut self.pending_restarts) {
             self.restart_process(i, &mut out)?;
@@ -654,6 +897,10 @@ impl LockstepSession {
         self.core.publish_clock(k, t_sim, dt, false)?;
         let mut last_progress = Instant::now();
         let mut last_done = 0usize;
+        let stall_timeout = self
+            .opts
+            .stall_timeout
+            .unwrap_or(Duration::from_millis(self.cfg.runtime.stall_timeout_ms));
         loop {
             self.core.drain_statuses();
             let done = self
@@ -670,10 +917,16 @@ impl LockstepSession {
                 last_progress = Instant::now();
             }
             self.supervise(k, &mut out)?;
+            if let Some(reason) = &self.report.halted {
+                return Err(SessionError::Halted {
+                    tick: k,
+                    reason: reason.clone(),
+                });
+            }
             if sys::termination_requested() {
                 return Err(SessionError::Interrupted);
             }
-            if last_progress.elapsed() > self.opts.stall_timeout {
+            if last_progress.elapsed() > stall_timeout {
                 let waiting: Vec<String> = self
                     .core
                     .stages
@@ -681,10 +934,15 @@ impl LockstepSession {
                     .filter(|v| v.tracked && v.alive && v.done.is_none_or(|d| d < k))
                     .map(|v| v.name.clone())
                     .collect();
-                return Err(SessionError::Stalled {
+                let e = SessionError::Stalled {
                     tick: k,
                     waited_ms: last_progress.elapsed().as_millis() as u64,
                     waiting: waiting.join(", "),
+                };
+                self.halt(k, "launcher", format!("{e} (hung?)"), &mut out)?;
+                return Err(SessionError::Halted {
+                    tick: k,
+                    reason: e.to_string(),
                 });
             }
             self.core.wait(Duration::from_millis(20))?;
@@ -712,8 +970,10 @@ impl LockstepSession {
                 cleaned.dead_removed,
                 if restart {
                     "restarting at the next tick"
+                } else if self.sup.spec(i).on_loss == OnLoss::Continue {
+                    "not restarted, the others go on (on_loss = \"continue\")"
                 } else {
-                    "not restarted, the others go on"
+                    "not restarted: e-stop, run halted"
                 }
             );
             if self.opts.verbose {
@@ -721,12 +981,40 @@ impl LockstepSession {
             }
             out.events.push(ev.clone());
             self.report.events.push(ev);
+            let t_s = k as f64 * self.cfg.period_ns() as f64 / 1e9;
+            self.core
+                .record(t_s, Some(k), &format!("process {name}"), format!("exited ({status})"));
             if restart {
                 self.pending_restarts.push(i);
             } else {
                 self.sup.mark_gone(i);
+                if self.sup.spec(i).on_loss == OnLoss::Halt {
+                    self.halt(k, &format!("process {name}"), format!("lost for good ({status})"), out)?;
+                }
             }
         }
+        Ok(())
+    }
+
+    /// Halts the run: records why, latches the e-stop; `step` refuses from now on.
+    fn halt(&mut self, k: u64, source: &str, why: String, out: &mut TickOutputs) -> Result<(), SessionError> {
+        if self.report.halted.is_some() {
+            return Ok(());
+        }
+        let t_ns = k * self.cfg.period_ns();
+        self.core.record(
+            t_ns as f64 / 1e9,
+            Some(k),
+            source,
+            format!("{why}; e-stop sent, run halted"),
+        );
+        self.core.estop(k, t_ns)?;
+        let reason = format!("{source}: {why}");
+        if self.opts.verbose {
+            eprintln!("launcher: halting: {reason}");
+        }
+        out.events.push(format!("halted: {reason}"));
+        self.report.halted = Some(reason);
         Ok(())
     }
 
@@ -743,12 +1031,20 @@ impl LockstepSession {
             }
             if let Some((_, status, _)) = self.sup.poll_exits().into_iter().find(|e| e.0 == i) {
                 self.sup.mark_gone(i);
-                let ev = format!(
-                    "process `{}` exited again during restart ({status})",
-                    self.sup.spec(i).name
-                );
+                let name = self.sup.spec(i).name.clone();
+                let ev = format!("process `{name}` exited again during restart ({status})");
                 out.events.push(ev.clone());
                 self.report.events.push(ev);
+                if self.sup.spec(i).on_loss == OnLoss::Continue {
+                    return Ok(());
+                }
+                let k = self.tick;
+                self.halt(
+                    k,
+                    &format!("process {name}"),
+                    format!("exited again during restart ({status})"),
+                    out,
+                )?;
                 return Ok(());
             }
             if Instant::now() >= deadline {
@@ -775,6 +1071,7 @@ impl LockstepSession {
     /// removes what the run leaves in shared memory.
     pub fn shutdown(mut self) -> Result<RunReport, SessionError> {
         let k = self.tick;
+        self.core.close(&mut self.report);
         self.core
             .publish_clock(k, k * self.cfg.period_ns(), self.cfg.period_ns(), true)?;
         let grace = Duration::from_millis(self.cfg.runtime.shutdown_timeout_ms);
@@ -821,6 +1118,8 @@ impl RealtimeSession {
         let (sup, mut core, cleanup_at_start, startup) = start_common(cfg, &opts)?;
         let start_ns = monotonic_ns() + 20_000_000;
         core.publish_clock(0, start_ns, cfg.period_ns(), false)?;
+        core.t0_ns = start_ns;
+        core.watch = true;
         if opts.verbose {
             eprintln!(
                 "launcher: {} process(es) ready in {} ms (real time, prefix `{}`); running{}",
@@ -870,32 +1169,101 @@ impl RealtimeSession {
                 let name = self.sup.spec(i).name.clone();
                 let cleaned = cleanup::remove_stale_nodes(&self.cfg.ipc())?;
                 let restart = self.sup.wants_restart(i, success);
+                let t_s = self.run_time_s();
                 let ev = format!(
-                    "{:.3} s: process `{name}` exited ({status}); stale resources of {} node(s) removed; {}",
-                    t0.elapsed().as_secs_f64(),
+                    "{t_s:.3} s: process `{name}` exited ({status}); stale resources of {} node(s) removed; {}",
                     cleaned.dead_removed,
                     if restart {
                         "restarting"
+                    } else if self.sup.spec(i).on_loss == OnLoss::Continue {
+                        "not restarted, the others go on (on_loss = \"continue\")"
                     } else {
-                        "not restarted, the others go on"
+                        "not restarted: e-stop, run halted"
                     }
                 );
                 if self.opts.verbose {
                     eprintln!("launcher: {ev}");
                 }
                 self.report.events.push(ev);
+                self.core
+                    .record(t_s, None, &format!("process {name}"), format!("exited ({status})"));
                 if restart {
                     self.sup.restart(i)?;
                     self.await_restart(i)?;
                 } else {
                     self.sup.mark_gone(i);
+                    if self.sup.spec(i).on_loss == OnLoss::Halt {
+                        return self.halt(&format!("process {name}"), format!("lost for good ({status})"));
+                    }
                 }
+            }
+            if let Some((name, silent_ms)) = self.silent_stage() {
+                return self.halt(
+                    &format!("stage {name}"),
+                    format!("no status for {silent_ms} ms (hung?)"),
+                );
             }
             let left = duration
                 .map(|d| d.saturating_sub(t0.elapsed()))
                 .unwrap_or(Duration::from_millis(100));
             self.core.wait(left.min(Duration::from_millis(100)))?;
         }
+    }
+
+    fn run_time_s(&self) -> f64 {
+        monotonic_ns().saturating_sub(self.start_ns) as f64 / 1e9
+    }
+
+    /// A status-reporting stage whose last status is older than `[runtime] liveness_ms`.
+    fn silent_stage(&self) -> Option<(String, u64)> {
+        let bound = Duration::from_millis(self.cfg.liveness_ms());
+        self.core
+            .stages
+            .iter()
+            .filter(|v| v.tracked && v.alive && v.started)
+            .find(|v| v.seen_at.elapsed() > bound)
+            .map(|v| (v.name.clone(), v.seen_at.elapsed().as_millis() as u64))
+    }
+
+    /// Halts the run: records why, latches the e-stop (and waits up to 200 ms for every
+    /// stage that takes it to confirm), and ends `run_for`.
+    fn halt(&mut self, source: &str, why: String) -> Result<(), SessionError> {
+        let t_s = self.run_time_s();
+        self.core
+            .record(t_s, None, source, format!("{why}; e-stop sent, run halted"));
+        let sent = Instant::now();
+        self.core.estop(0, monotonic_ns())?;
+        let until = sent + Duration::from_millis(200);
+        let confirmed = loop {
+            self.core.drain_statuses();
+            let pending: Vec<&str> = self
+                .core
+                .stages
+                .iter()
+                .filter(|v| v.takes_estop && v.alive && v.seen_state != state::ESTOP)
+                .map(|v| v.name.as_str())
+                .collect();
+            if pending.is_empty() {
+                break Ok(sent.elapsed());
+            }
+            if Instant::now() >= until {
+                break Err(pending.join(", "));
+            }
+            self.core.wait(Duration::from_millis(2))?;
+        };
+        let what = match confirmed {
+            Ok(d) => format!("e-stop confirmed in {:.1} ms", d.as_secs_f64() * 1e3),
+            Err(p) => format!("e-stop not confirmed within 200 ms by: {p}"),
+        };
+        let t_s = self.run_time_s();
+        self.core.record(t_s, None, "launcher", what);
+        let reason = format!("{source}: {why}");
+        if self.opts.verbose {
+            eprintln!("launcher: halting: {reason}");
+        }
+        self.report.events.push(format!("halted: {reason}"));
+        self.report.halted = Some(reason);
+        Ok(())
     }
 
     fn await_restart(&mut self, i: usize) -> Result<(), SessionError> {
@@ -937,6 +1305,7 @@ impl RealtimeSession {
     /// Stops every process (shutdown tick, then signals if needed) and returns the summary.
     pub fn shutdown(mut self) -> Result<RunReport, SessionError> {
         let elapsed_ns = monotonic_ns().saturating_sub(self.start_ns);
+        self.core.close(&mut self.report);
         self.core.publish_clock(0, 0, self.cfg.period_ns(), true)?;
         let grace = Duration::from_millis(self.cfg.runtime.shutdown_timeout_ms);
         self.report.forced_stops = self.sup.stop_all(grace);

@@ -20,6 +20,35 @@ pub mod state {
     pub const DEGRADED: u32 = 2;
     pub const STOPPED: u32 = 3;
     pub const ESTOP: u32 = 4;
+    /// Safe hold after a fault the stage detected (robot state not finite, out of range, stale,
+    /// missing); latched until it clears as configured or a person releases it.
+    pub const FAULT: u32 = 5;
+
+    /// The state a stage's counters report while it runs (e-stop over fault hold over degraded).
+    pub fn of(c: &super::StageCounters) -> u32 {
+        if c.estop {
+            ESTOP
+        } else if c.fault_hold {
+            FAULT
+        } else if c.degraded {
+            DEGRADED
+        } else {
+            RUNNING
+        }
+    }
+
+    /// A short name for reports.
+    pub fn name(s: u32) -> &'static str {
+        match s {
+            STARTING => "starting",
+            RUNNING => "running",
+            DEGRADED => "degraded",
+            STOPPED => "stopped",
+            ESTOP => "e-stop",
+            FAULT => "fault hold",
+            _ => "?",
+        }
+    }
 }
 
 /// Context of one activation: what a node may ask of the tick it runs in. The scheduling mode
@@ -169,6 +198,10 @@ pub struct StageCounters {
     pub degraded: bool,
     /// E-stop latched.
     pub estop: bool,
+    /// Holding safely after a fault it detected (`state::FAULT`).
+    pub fault_hold: bool,
+    /// The last fault detected (`bowden_interfaces::fault` codes, 0 = none).
+    pub last_fault: u32,
 }
 
 /// A stage failed in a way it cannot recover from (the process exits non-zero; the supervisor
