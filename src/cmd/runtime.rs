@@ -497,6 +497,32 @@ pub enum BenchCommand {
         #[arg(long)]
         fifo: Option<u8>,
     },
+    /// Robot-side faults injected into the default simulated pipeline (configs/sim.toml) in real
+    /// time — the plant publishing NaN, ±900°, nothing; hanging; killed for good — each run
+    /// measured from its own fault records: detection time, reaction, exit code.
+    Faults {
+        /// Runs per fault.
+        #[arg(long, default_value_t = 5)]
+        runs: usize,
+        /// Only these faults (comma-separated): nan, out-of-range, silent, hung, lost.
+        #[arg(long, value_delimiter = ',')]
+        cases: Option<Vec<String>>,
+        /// Seconds of normal running before the fault.
+        #[arg(long, default_value_t = 1.0)]
+        fault_at_s: f64,
+        /// Seconds run after it.
+        #[arg(long, default_value_t = 1.0)]
+        after_s: f64,
+        /// Print the rows as JSON on stdout instead of the table.
+        #[arg(long)]
+        json: bool,
+        /// Also write the rows as JSON to FILE.
+        #[arg(long, value_name = "FILE")]
+        json_out: Option<PathBuf>,
+        /// Overwrite --json-out if it exists.
+        #[arg(long)]
+        force: bool,
+    },
     /// End-to-end control cycle (target → compensated → motor command) at the config's rate,
     /// with and without CPU load on the other core; deadline misses per stage.
     Cycle {
@@ -653,6 +679,60 @@ pub fn bench(c: BenchCommand) -> anyhow::Result<()> {
             };
             let one_way = bench::run_ipc_peer(v, &settings, warmup, expect).map_err(anyhow::Error::msg)?;
             println!("{}", serde_json::to_string(&one_way).context("JSON")?);
+            Ok(())
+        }
+        BenchCommand::Faults {
+            runs,
+            cases,
+            fault_at_s,
+            after_s,
+            json,
+            json_out,
+            force,
+        } => {
+            use bowden_runtime::faultbench::{self, FaultBenchOptions, FaultCase};
+            super::refuse_overwrite(json_out.as_slice(), force, "--json-out")?;
+            let cases = match cases {
+                None => FaultCase::ALL.to_vec(),
+                Some(names) => names
+                    .iter()
+                    .map(|n| {
+                        FaultCase::ALL.into_iter().find(|c| c.name() == n).with_context(|| {
+                            format!("--cases: unknown fault `{n}` (nan, out-of-range, silent, hung, lost)")
+                        })
+                    })
+                    .collect::<anyhow::Result<_>>()?,
+            };
+            if runs == 0 || !(fault_at_s > 0.0 && after_s > 0.0) {
+                bail!("--runs must be at least 1, --fault-at-s and --after-s positive");
+            }
+            let work = std::env::temp_dir().join(format!("bowden-bench-faults-{}", std::process::id()));
+            let opts = FaultBenchOptions {
+                cases,
+                runs,
+                fault_at_s,
+                after_s,
+                launch: LaunchOptions::current_exe().context("locating the bowden executable")?,
+                kinds: bowden::registry::REGISTRY,
+                work_dir: work.clone(),
+            };
+            let bar = indicatif::ProgressBar::new((opts.cases.len() * runs) as u64);
+            let rows = faultbench::run(&opts, |line| {
+                bar.println(line);
+                bar.inc(1);
+            });
+            let _ = std::fs::remove_dir_all(&work);
+            let rows = rows?;
+            bar.finish_and_clear();
+            let text = serde_json::to_string_pretty(&rows).context("JSON")?;
+            if json {
+                println!("{text}");
+            } else {
+                print!("{}", faultbench::to_markdown(&rows));
+            }
+            if let Some(j) = json_out {
+                std::fs::write(&j, text).with_context(|| format!("writing {}", j.display()))?;
+            }
             Ok(())
         }
         BenchCommand::Cycle {

@@ -2,7 +2,8 @@
 //! own counting global allocator (`RtAlloc`, per-thread counters, iceoryx2's per-loan `Rc` served
 //! from a pre-faulted pool) and checks:
 //! 1. in process: one cycle of the real components over the real ports — trajectory target →
-//!    compensator (Algorithm 1 on the shipped fixture models) → actuator → plant, with event
+//!    compensator (Algorithm 1 on the shipped fixture models) → actuator (with its robot-state
+//!    monitor reading the plant state back) → plant, with event
 //!    wake-ups, the reactor, status samples and latency histograms — after a warm-up makes zero
 //!    system allocations, and exactly one pool block per published sample;
 //! 2. in real processes: every node of the real-time control chain and of the lockstep sim
@@ -46,6 +47,7 @@ fn in_process_cycle_makes_no_system_allocation() {
         let mut motor_out = ctx.output::<MotorCommand>(services::MOTOR_COMMAND).unwrap();
         let mut motor_in = ctx.input::<MotorCommand>(services::MOTOR_COMMAND, 4).unwrap();
         let mut state_out = ctx.output::<PlantState>(services::PLANT_STATE).unwrap();
+        let mut state_in = ctx.input::<PlantState>(services::PLANT_STATE, 64).unwrap();
         let mut status_out = ctx.output::<ComponentStatus>(services::COMPONENT_STATUS).unwrap();
         let mut reactor = Reactor::new().unwrap();
         reactor.add(target_wait.fd()).unwrap();
@@ -56,6 +58,8 @@ fn in_process_cycle_makes_no_system_allocation() {
         comp.set_budget_ns(0);
         let mut step_out = StepOutput::default();
         let mut act = Actuator::new(&robot, &ActuatorConfig::default(), "test").unwrap();
+        // The robot-state monitor (a fault-hold check of every state) is part of the cycle.
+        act.monitor_robot_state(1_000_000, "test").unwrap();
         let mut plant = Plant::new(&robot, &PlantConfig::paper_default(), 1);
         let mut hist = LatencyHistogram::new();
         let commands = bowden_trajectory::dataset_commands(&robot, 6, 1);
@@ -92,6 +96,10 @@ fn in_process_cycle_makes_no_system_allocation() {
             while let Some(s) = safety_in.recv() {
                 act.safety(&s, t0);
             }
+            while let Some(s) = state_in.recv() {
+                assert!(act.observe_robot(&s).is_none(), "tick {k}: a healthy plant");
+            }
+            assert!(act.supervise(k * 1_000_000).is_none());
             let c = cmd_in.take_tick(k).expect("command");
             let r = act.command(&c.q_cmd_deg, c.n_joints, k * 1_000_000);
             motor_out
@@ -105,7 +113,7 @@ fn in_process_cycle_makes_no_system_allocation() {
             plant.step(&w, 0.001).unwrap();
             let mut s = PlantState::default();
             plant.fill_state(&mut s);
-            state_out.publish(k, t0, s).unwrap();
+            state_out.publish(k, k * 1_000_000, s).unwrap();
             publishes += 1;
             // bookkeeping
             hist.record(monotonic_ns() - t0);

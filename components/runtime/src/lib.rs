@@ -22,6 +22,7 @@ pub mod bench;
 pub mod cleanup;
 pub mod config;
 pub mod executor;
+pub mod faultbench;
 pub mod launch;
 pub mod node;
 pub mod ports;

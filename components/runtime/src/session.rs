@@ -332,6 +332,10 @@ struct StageView {
     seen_at: Instant,
     /// Reads `bowden/safety` (an actuator): confirms an e-stop.
     takes_estop: bool,
+    /// Has reported running at least once.
+    ever_running: bool,
+    /// A fault state was recorded and has not cleared yet.
+    fault_open: bool,
 }
 
 /// The launcher's iceoryx2 side: clock, statuses, wake-ups.
@@ -388,6 +392,8 @@ impl Core {
                 last_t_s: 0.0,
                 seen_at: Instant::now(),
                 takes_estop: s.reads.iter().any(|(svc, _)| svc == services::SAFETY),
+                ever_running: false,
+                fault_open: false,
             });
         }
         Ok(Self {
@@ -441,13 +447,25 @@ impl Core {
                     }
                 }
                 if st.state != v.seen_state {
+                    // A stage degraded before it ever ran (a camera waiting for the robot's
+                    // first state) is starting up, not faulty; it still counts at the end if it
+                    // never got going.
+                    let starting = st.state == state::DEGRADED && !v.ever_running;
                     let what = match st.state {
-                        state::RUNNING => format!("running again (was {})", state::name(v.seen_state)),
-                        state::FAULT => format!("safe hold: {}", fault::name(st.last_fault)),
-                        s => state::name(s).to_string(),
+                        state::RUNNING if v.fault_open => {
+                            Some(format!("running again (was {})", state::name(v.seen_state)))
+                        }
+                        state::RUNNING => None,
+                        state::FAULT => Some(format!("safe hold: {}", fault::name(st.last_fault))),
+                        _ if starting => None,
+                        s => Some(state::name(s).to_string()),
                     };
-                    record(what);
+                    v.fault_open = st.state != state::RUNNING && !starting;
+                    if let Some(what) = what {
+                        record(what);
+                    }
                 }
+                v.ever_running |= st.state == state::RUNNING;
                 v.seen_faults = v.seen_faults.max(st.faults);
                 v.seen_state = st.state;
             }
@@ -1120,6 +1138,12 @@ impl RealtimeSession {
         core.publish_clock(0, start_ns, cfg.period_ns(), false)?;
         core.t0_ns = start_ns;
         core.watch = true;
+        // Silence is measured from the common start: a process that waited long for the others
+        // to start up sent no status meanwhile, and is not hung.
+        let now = Instant::now();
+        for v in core.stages.iter_mut() {
+            v.seen_at = now;
+        }
         if opts.verbose {
             eprintln!(
                 "launcher: {} process(es) ready in {} ms (real time, prefix `{}`); running{}",
@@ -1210,7 +1234,8 @@ impl RealtimeSession {
         }
     }
 
-    fn run_time_s(&self) -> f64 {
+    /// Seconds since the common start (the time base of the run's fault records).
+    pub fn run_time_s(&self) -> f64 {
         monotonic_ns().saturating_sub(self.start_ns) as f64 / 1e9
     }
 
@@ -1281,6 +1306,10 @@ impl RealtimeSession {
                 .all(|v| v.started || !v.tracked)
             {
                 // The restarted process waits for a start tick: same grid as everyone else.
+                let now = Instant::now();
+                for v in self.core.stages.iter_mut().filter(|v| v.process == i) {
+                    v.seen_at = now;
+                }
                 self.core.clock_out.update_connections()?;
                 self.core.publish_clock(0, self.start_ns, self.cfg.period_ns(), false)?;
                 let ev = format!(
