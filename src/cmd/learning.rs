@@ -10,7 +10,7 @@ use bowden_learning::sweep::{execute_runs, merge_sweep, plan_sweep, run_sweep, S
 use bowden_learning::{Architecture, Backend, Direction, PhySource, Precision, SplitConfig, TcnBlock, TrainConfig};
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 // The spellings are the model contract's (bowden_interfaces::model), listed from the enums.
 
@@ -29,6 +29,42 @@ pub enum Command {
     /// command-to-physical gap) in its metadata, for models trained before `train` wrote it.
     /// Only metadata changes; the graph and weights stay byte for byte.
     StampSupport(StampSupportArgs),
+    /// Score trained models on a dataset: RMSE and MAE per joint and pooled, against identity
+    /// (the raw hysteresis), in degrees, on `train`'s validation windows — the split, angle
+    /// source and decimation of each model's training report (NAME.report.json) when it has
+    /// one, else the flags — so the RMSE is `train`'s figure exactly. A table, JSON and, with
+    /// --plots, predicted against measured over time.
+    Score(ScoreArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct ScoreArgs {
+    /// Dataset directory (dataset.csv + manifest.json).
+    #[arg(long)]
+    data: PathBuf,
+    /// Model files (ONNX), forward or inverse (their metadata says which windows are theirs).
+    #[arg(required = true)]
+    models: Vec<PathBuf>,
+    /// Use the split flags below even where a model has a training report.
+    #[arg(long)]
+    ignore_report: bool,
+    #[command(flatten)]
+    split: SplitArgs,
+    /// Largest history decimation of the windows (as `train --decimation`), when no report says.
+    #[arg(long, default_value_t = 1)]
+    decimation: usize,
+    /// Write NAME.score.svg per model into this directory.
+    #[arg(long, value_name = "DIR")]
+    plots: Option<PathBuf>,
+    /// Print the scores as JSON on stdout instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// Also write the scores as JSON to FILE.
+    #[arg(long, value_name = "FILE")]
+    json_out: Option<PathBuf>,
+    /// Overwrite --json-out and plots if they exist.
+    #[arg(long)]
+    force: bool,
 }
 
 #[derive(Args, Debug)]
@@ -352,6 +388,7 @@ pub fn run(c: Command) -> Result<()> {
             Ok(())
         }
         Command::Sweep(a) => sweep(a),
+        Command::Score(a) => score(a),
         Command::StampSupport(a) => {
             let (split, phy) = a.split.parse()?;
             super::dataset_dir("--data", &a.data)?;
@@ -635,4 +672,46 @@ pub fn bench(c: BenchCommand) -> Result<()> {
             Ok(())
         }
     }
+}
+
+fn score(a: ScoreArgs) -> Result<()> {
+    use bowden_learning::score::{self, ScoreSettings};
+    let (split, phy) = a.split.parse()?;
+    let data = super::dataset_dir("--data", &a.data)?;
+    let plot_of = |m: &Path| -> Option<PathBuf> {
+        let dir = a.plots.as_ref()?;
+        let stem = m
+            .file_stem()
+            .map(|s| s.to_string_lossy().to_string())
+            .unwrap_or_default();
+        Some(dir.join(format!("{stem}.score.svg")))
+    };
+    let mut outputs: Vec<PathBuf> = a.models.iter().filter_map(|m| plot_of(m)).collect();
+    outputs.extend(a.json_out.iter().cloned());
+    super::refuse_overwrite(&outputs, a.force, "--plots / --json-out")?;
+    if let Some(dir) = &a.plots {
+        std::fs::create_dir_all(dir).with_context(|| format!("--plots {}", dir.display()))?;
+    }
+    let mut scores = Vec::new();
+    for m in &a.models {
+        let settings = match ScoreSettings::of_model(m)? {
+            Some(s) if !a.ignore_report => s,
+            _ => ScoreSettings::given(split, phy, a.decimation),
+        };
+        let (sc, series) = score::score(m, data, &settings).with_context(|| format!("scoring {}", m.display()))?;
+        if let Some(p) = plot_of(m) {
+            score::plot(&p, &sc, &series)?;
+        }
+        scores.push(sc);
+    }
+    let text = serde_json::to_string_pretty(&scores).context("JSON")?;
+    if a.json {
+        println!("{text}");
+    } else {
+        print!("{}", score::to_markdown(&scores));
+    }
+    if let Some(j) = &a.json_out {
+        std::fs::write(j, text + "\n").with_context(|| format!("writing {}", j.display()))?;
+    }
+    Ok(())
 }

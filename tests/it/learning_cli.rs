@@ -378,3 +378,63 @@ fn bench_train_times_pytorch_in_the_same_run_and_train_records_bf16() {
         &["--precision", "f16"],
     );
 }
+
+/// `bowden score` (#42 item 3) reproduces `train`'s validation RMSE to the last bit, forward
+/// and inverse, on the windows of each model's training report (here a two-block split and the
+/// decimation `auto` chose), and reports MAE and identity beside it, with a plot.
+#[test]
+fn score_reproduces_train_validation_rmse_exactly() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = synthetic_dir(&tmp.path().join("data"), 1500);
+    let dir = tmp.path().join("m");
+    let (fwd, inv) = (dir.join("fwd.onnx"), dir.join("inv.onnx"));
+    let (fwd_s, inv_s) = (fwd.display().to_string(), inv.display().to_string());
+    let split = ["--seq-len", "16", "--epochs", "2", "--seed", "3", "--val-blocks", "2"];
+    ok(&train_tcn_forward(&data, &fwd_s, &split));
+    let mut args = vec![
+        "train",
+        "--arch",
+        "tcn",
+        "--direction",
+        "inverse",
+        "--data",
+        &data,
+        "--out",
+        &inv_s,
+    ];
+    args.extend_from_slice(&split);
+    ok(&bowden(&args));
+    let plots = tmp.path().join("plots").display().to_string();
+    let out = ok(&bowden(&[
+        "score", "--json", "--data", &data, &fwd_s, &inv_s, "--plots", &plots,
+    ]));
+    let scores: serde_json::Value = serde_json::from_str(&out).unwrap();
+    for (i, (m, stem)) in [(&fwd, "fwd"), (&inv, "inv")].into_iter().enumerate() {
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(m.with_extension("report.json")).unwrap()).unwrap();
+        let s = &scores[i];
+        assert_eq!(s["rmse_deg"], report["best_val_rmse_deg"], "{m:?}: {s}");
+        assert_eq!(s["rmse_per_joint_deg"], report["best_val_rmse_per_joint_deg"]);
+        assert_eq!(s["identity_rmse_deg"], report["identity_val_rmse_deg"]);
+        assert_eq!(s["windows"], report["data"]["val_windows"]);
+        assert_eq!(s["settings"]["decimation"], report["config"]["decimation"]);
+        assert_eq!(s["settings"]["split"]["val_blocks"], 2);
+        let (mae, rmse) = (s["mae_deg"].as_f64().unwrap(), s["rmse_deg"].as_f64().unwrap());
+        assert!(mae > 0.0 && mae <= rmse, "MAE ≤ RMSE: {mae} {rmse}");
+        let svg = std::fs::read_to_string(Path::new(&plots).join(format!("{stem}.score.svg"))).unwrap();
+        assert!(svg.starts_with("<svg") && svg.contains("measured"));
+    }
+    assert_eq!(scores[1]["direction"], "inverse");
+    // Other windows, other figures: the report's settings are what made them equal.
+    let out = ok(&bowden(&[
+        "score",
+        "--json",
+        "--ignore-report",
+        "--data",
+        &data,
+        &fwd_s,
+    ]));
+    let other: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(other[0]["settings"]["from"], "given");
+    assert_ne!(other[0]["rmse_deg"], scores[0]["rmse_deg"]);
+}

@@ -2,7 +2,7 @@
 
 use crate::config::{ConfigError, ControllerConfig, EvaluatorChoice, Mode, SafetyConfig};
 use crate::history::History;
-use crate::model::{Evaluator, LoadOptions, Model, ModelError};
+use crate::model::{Evaluator, Model, ModelError};
 use crate::net::IncrementalNet;
 use crate::prefix::{PrefixSync, PrefixWorker, PrefixWorkerOptions, FWD, INV};
 use crate::refine::{newton_refine, paper_refine, NewtonParams, PaperParams, RefineResult, StopReason, WindowModel};
@@ -258,11 +258,7 @@ fn load_model(
     j: usize,
 ) -> Result<(Model, String), CompensatorError> {
     let path = cfg.resolve_model_path(field, p)?;
-    let opts = LoadOptions {
-        check_windows: cfg.load_check.windows,
-        tolerance_deg: cfg.load_check.tolerance_deg,
-        ..LoadOptions::default()
-    };
+    let opts = cfg.load_check.options();
     let m = Model::load_with(&path, &opts)?;
     let name = path.display().to_string();
     if m.metadata().direction != dir {

@@ -126,8 +126,29 @@ pub struct OutputConfig {
 pub struct LoadCheckConfig {
     /// Random windows on which the incremental evaluator is checked against tract at load.
     pub windows: usize,
-    /// Largest accepted difference, degrees.
+    /// Absolute floor of the accepted difference, degrees.
     pub tolerance_deg: f64,
+    /// Accepted difference relative to the outputs' scale (see
+    /// `bowden_compensator::LoadOptions::relative`); 1e-5 when absent.
+    #[serde(default = "default_load_check_relative")]
+    pub relative: f64,
+}
+
+fn default_load_check_relative() -> f64 {
+    crate::model::LoadOptions::default().relative
+}
+
+impl LoadCheckConfig {
+    /// How every model of this controller is loaded and checked (its own, swapped-in ones,
+    /// `tune`'s candidates).
+    pub fn options(&self) -> crate::model::LoadOptions {
+        crate::model::LoadOptions {
+            check_windows: self.windows,
+            tolerance_deg: self.tolerance_deg,
+            relative: self.relative,
+            ..Default::default()
+        }
+    }
 }
 
 /// Safe refinement (docs/architecture.md, "Safe refinement"): what keeps a learned model from
@@ -404,6 +425,13 @@ impl ControllerConfig {
                 "load_check.tolerance_deg",
                 lc.tolerance_deg.to_string(),
                 "must be a positive number",
+            );
+        }
+        if !(lc.relative.is_finite() && (0.0..1.0).contains(&lc.relative)) {
+            return bad(
+                "load_check.relative",
+                lc.relative.to_string(),
+                "must be a number in [0, 1)",
             );
         }
         Ok(())

@@ -43,11 +43,7 @@ impl LoaderSettings {
     pub fn for_compensator(comp: &crate::Compensator, cfg: &crate::ControllerConfig, who: &str, verbose: bool) -> Self {
         let (fwd_l, inv_l) = comp.seq_lens();
         Self {
-            load: LoadOptions {
-                check_windows: cfg.load_check.windows,
-                tolerance_deg: cfg.load_check.tolerance_deg,
-                ..LoadOptions::default()
-            },
+            load: cfg.load_check.options(),
             fwd_l,
             inv_l,
             joints: comp.joints(),

@@ -22,6 +22,7 @@ pub mod kernels;
 pub mod npy;
 pub mod onnx;
 pub mod report;
+pub mod score;
 pub mod spacing;
 pub mod support;
 pub mod sweep;
@@ -35,5 +36,7 @@ pub use kernels::Precision;
 pub use onnx::{ModelFile, OnnxError, TractModel};
 pub use report::{train_to_files, LearnError, TrainReport};
 pub use support::DataSupport;
-pub use train::{fine_tune, mean_residual_deg, rmse_deg, train, Backend, TrainConfig, TrainError, TrainOutcome};
+pub use train::{
+    fine_tune, mean_residual_deg, rmse_deg, rmse_per_joint_deg, train, Backend, TrainConfig, TrainError, TrainOutcome,
+};
 pub use windows::{PhySource, SplitConfig, WindowSet};

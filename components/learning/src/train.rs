@@ -473,6 +473,20 @@ pub fn fine_tune(
 /// Validation RMSE (deg, over joints) of `model` on the windows `ids` of `data`, which must
 /// carry the model's normalisation.
 pub fn rmse_deg(model: &ModelFile, data: &WindowSet, ids: &[usize]) -> Result<f64, TrainError> {
+    let batch = TrainConfig::paper(model.spec.arch, model.direction, model.spec.seq_len, 1, 0).batch_size;
+    Ok(overall_rmse(&rmse_per_joint_deg(model, data, ids, batch)?))
+}
+
+/// Validation RMSE per joint (deg) of `model` on the windows `ids` of `data` (which must carry
+/// the model's normalisation), computed exactly as `train` computes its validation figure for
+/// a run with batch size `batch_size`: the same forward pass, in chunks of the same size, in
+/// normalised units scaled back by the output's standard deviation.
+pub fn rmse_per_joint_deg(
+    model: &ModelFile,
+    data: &WindowSet,
+    ids: &[usize],
+    batch_size: usize,
+) -> Result<Vec<f64>, TrainError> {
     let cfg = TrainConfig {
         tcn_block: model.spec.tcn_block,
         ..TrainConfig::paper(model.spec.arch, model.direction, model.spec.seq_len, 1, 0)
@@ -483,12 +497,11 @@ pub fn rmse_deg(model: &ModelFile, data: &WindowSet, ids: &[usize]) -> Result<f6
     }
     let mut engine = Engine::new(model.spec, &cfg)?;
     engine.set_params(&model.params)?;
-    let sse = engine.evaluate(data, ids, cfg.batch_size.max(32))?;
+    let sse = engine.evaluate(data, ids, batch_size.max(32))?;
     let n = ids.len() as f64;
-    let per_joint: Vec<f64> = (0..data.joints)
+    Ok((0..data.joints)
         .map(|k| (sse[k] / n).sqrt() * data.norm_out.sd[k])
-        .collect();
-    Ok(overall_rmse(&per_joint))
+        .collect())
 }
 
 /// Mean residual (target − prediction) per joint, deg, of `model` over the windows `ids` of

@@ -295,11 +295,16 @@ impl Replay<'_> {
     }
 }
 
-fn load(paths: &[PathBuf], want: bowden_learning::Direction) -> Result<Vec<Model>, TuneError> {
+/// Loads the candidates as the controller will (`base`'s `[load_check]`).
+fn load(
+    paths: &[PathBuf],
+    want: bowden_learning::Direction,
+    check: &bowden_compensator::LoadOptions,
+) -> Result<Vec<Model>, TuneError> {
     paths
         .iter()
         .map(|p| {
-            let m = Model::load(p)?;
+            let m = Model::load_with(p, check)?;
             if m.metadata().direction != want {
                 return Err(TuneError::Direction {
                     path: p.display().to_string(),
@@ -338,9 +343,9 @@ pub fn tune(
         return Err(TuneError::Options(format!("prior weight {m} must be finite and ≥ 0")));
     }
     base.validate().map_err(|e| TuneError::BaseConfig(e.to_string()))?;
-    let fwd = load(forward, D::Forward)?;
-    let inv = load(inverse, D::Inverse)?;
-    let judge_models = load(&opts.judges, D::Forward)?;
+    let fwd = load(forward, D::Forward, &base.load_check.options())?;
+    let inv = load(inverse, D::Inverse, &base.load_check.options())?;
+    let judge_models = load(&opts.judges, D::Forward, &base.load_check.options())?;
 
     let split = WindowSet::build(ds, LearnDirection::Forward, 1, opts.split, PhySource::Vision)
         .map_err(|e| TuneError::Split(e.to_string()))?;

@@ -232,14 +232,70 @@ fn non_causal_convolution_is_not_run_incrementally() {
 
 #[test]
 fn incremental_that_disagrees_with_tract_is_refused() {
-    // The fixtures agree with tract to ~1e-5 deg; demanding 1e-9 must refuse them, naming the
-    // file, the difference and the tolerance.
+    // The fixtures agree with tract to ~1e-5 deg; demanding 1e-9 (and nothing relative) must
+    // refuse them, naming the file, the difference and the tolerance.
     let opts = LoadOptions {
         tolerance_deg: 1e-9,
+        relative: 0.0,
         ..LoadOptions::default()
     };
     let e = Model::load_with(common::fixture(TCN), &opts).unwrap_err();
     assert_eq!(e.kind(), "incremental-mismatch", "{e}");
     let s = e.to_string();
     assert!(s.contains(TCN) && s.contains("refusing") && s.contains("1.0e-9"), "{s}");
+}
+
+/// The load check's bound follows the outputs' scale (#42 item 4): f32 rounding in tract grows
+/// with the size of the numbers, so a model with large outputs that is refused by a tight
+/// absolute bound loads under the relative one, and a relative bound too tight for f32 is
+/// refused like an absolute one.
+#[test]
+fn the_load_check_bound_is_relative_to_the_outputs_scale() {
+    let tight_abs = LoadOptions {
+        tolerance_deg: 1e-9,
+        relative: 0.0,
+        ..LoadOptions::default()
+    };
+    let diff = match Model::load_with(common::fixture(TCN), &tight_abs) {
+        Err(bowden_compensator::ModelError::IncrementalMismatch {
+            max_abs_diff_deg,
+            scale_deg,
+            ..
+        }) => {
+            assert!(scale_deg > 1.0, "outputs of degrees: {scale_deg}");
+            (max_abs_diff_deg, scale_deg)
+        }
+        other => panic!("{:?}", other.err()),
+    };
+    // Relative: 4× the observed difference over the scale passes, a quarter of it fails.
+    let rel_ok = 4.0 * diff.0 / diff.1;
+    let m = Model::load_with(
+        common::fixture(TCN),
+        &LoadOptions {
+            relative: rel_ok,
+            ..tight_abs.clone()
+        },
+    )
+    .expect("inside the relative bound");
+    assert!(m.load_check_max_abs_diff_deg().unwrap() <= rel_ok * diff.1);
+    let e = Model::load_with(
+        common::fixture(TCN),
+        &LoadOptions {
+            relative: diff.0 / diff.1 / 4.0,
+            ..tight_abs
+        },
+    )
+    .unwrap_err();
+    assert_eq!(e.kind(), "incremental-mismatch");
+    // The default bound accepts every shipped fixture.
+    for f in [
+        "fnn_forward_L80_J5_s0",
+        "lstm_forward_L80_J5_s0",
+        TCN,
+        "tcn-linear2_inverse_L80_J5_s0",
+        "tcn-lstm_forward_L80_J5_s0",
+        "tcn_forward_L80_J5_s0",
+    ] {
+        Model::load_with(common::fixture(f), &LoadOptions::default()).unwrap_or_else(|e| panic!("{f}: {e}"));
+    }
 }
