@@ -160,5 +160,35 @@ fn run_tune(mut a: TuneArgs) -> Result<()> {
         r.step_deg,
         json.display()
     );
+    // The chosen models by `train`'s (and `bowden score`'s) definition of validation RMSE, so
+    // the figure a user compares is the same everywhere: tune's own replay scores above use its
+    // split, which need not be the one a model was trained with.
+    for m in [&outcome.model_fwd, &outcome.model_inv] {
+        let settings = bowden_learning::score::ScoreSettings::of_model(m)?.unwrap_or_else(|| {
+            bowden_learning::score::ScoreSettings::given(
+                SplitConfig {
+                    val_fraction: a.val_fraction,
+                    val_blocks: a.val_blocks,
+                },
+                Default::default(),
+                1,
+            )
+        });
+        let (sc, _) = bowden_learning::score::score(m, &a.data, &settings)
+            .with_context(|| format!("scoring {} as `bowden score` does", m.display()))?;
+        println!(
+            "{} {}: validation RMSE {:.3}° (identity {:.3}°) on {} windows by train's definition ({})",
+            sc.direction,
+            m.display(),
+            sc.rmse_deg,
+            sc.identity_rmse_deg,
+            sc.windows,
+            if settings.from == "given" {
+                "tune's split".to_string()
+            } else {
+                format!("settings of {}", settings.from)
+            }
+        );
+    }
     Ok(())
 }

@@ -444,3 +444,67 @@ fn bench_faults_detects_every_injected_fault() {
         "the e-stop was confirmed"
     );
 }
+
+/// The management-file attack of #41 as another user (needs root here, to act as `nobody`;
+/// elsewhere it says so and passes): emptying the prefix's iceoryx2 files fails, and
+/// `bowden estop` still latches and is confirmed.
+#[test]
+fn another_user_cannot_empty_the_pipeline_files_and_the_estop_still_works() {
+    use std::os::unix::process::CommandExt;
+    // SAFETY: geteuid has no preconditions.
+    if unsafe { libc::geteuid() } != 0 {
+        eprintln!("another_user_cannot_empty_…: not root, cannot act as another user here");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (p, _guard) = guarded_prefix("fs11");
+    let text = control_chain(&p, "never").replace("mode = \"lockstep\"\n", "mode = \"realtime\"\n");
+    let path = write_config(dir.path(), "rt.toml", &text);
+    let cfg = PipelineConfig::load(&path, &Overrides::default(), REGISTRY).unwrap();
+    let mut opts = SessionOptions::new(LaunchOptions::with_exe(bowden_exe()));
+    opts.launch.quiet_children = true;
+    let mut s = bowden_runtime::session::RealtimeSession::start(&cfg, opts).unwrap();
+    s.run_for(Some(Duration::from_millis(300))).unwrap();
+    let files = bowden_runtime::cleanup::prefix_files(&settings(&p));
+    let mgmt = files
+        .iter()
+        .find(|f| f.to_string_lossy().ends_with("global_mgmt"))
+        .expect("the management file");
+    {
+        let f = mgmt;
+        let attack = std::process::Command::new("sh")
+            .arg("-c")
+            .arg(format!(": > '{}'", f.display()))
+            .uid(65534)
+            .gid(65534)
+            .output()
+            .unwrap();
+        assert!(
+            !attack.status.success(),
+            "another user emptied {}: {}",
+            f.display(),
+            String::from_utf8_lossy(&attack.stderr)
+        );
+    }
+    let t0 = std::time::Instant::now();
+    let out = bowden()
+        .args(["estop", "--prefix", &p, "--timeout-ms", "2000"])
+        .output()
+        .unwrap();
+    let took = t0.elapsed();
+    assert!(
+        out.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("confirmed by `actuator`"));
+    eprintln!(
+        "estop after the attack: confirmed in {:.0} ms (process start included)",
+        took.as_secs_f64() * 1e3
+    );
+    s.run_for(Some(Duration::from_millis(50))).unwrap();
+    let report = s.shutdown().unwrap();
+    assert_eq!(report.outcome, Outcome::EStop, "{}", report.format_summary());
+    assert_clean(&p);
+}

@@ -207,6 +207,23 @@ fn quick_transfer_runs_resumes_and_reports() {
     );
     let controller = std::fs::read_to_string(unit_dir.join("controller.toml")).unwrap();
     assert!(controller.contains("judge #1: lstm_forward_L10.onnx"), "{controller}");
+    // tune quotes its chosen models' validation RMSE by train's definition: the number in the
+    // model's training report (#42 item 3).
+    let tune_log = std::fs::read_to_string(unit_dir.join("logs/tune.log")).unwrap();
+    let fwd_model = tuned["model_fwd"].as_str().unwrap();
+    let fwd_report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(unit_dir.join(fwd_model).with_extension("report.json")).unwrap())
+            .unwrap();
+    let quoted = format!(
+        "validation RMSE {:.3}°",
+        fwd_report["best_val_rmse_deg"].as_f64().unwrap()
+    );
+    assert!(
+        tune_log
+            .lines()
+            .any(|l| l.starts_with("forward ") && l.contains(&quoted) && l.contains("by train's definition")),
+        "{quoted} in:\n{tune_log}"
+    );
     assert!(!controller.contains("model_fwd = \"models/lstm"), "{controller}");
     assert!(first.iter().all(|(_, st)| st == "ran"), "{first:?}");
     for (s, _) in &first {
