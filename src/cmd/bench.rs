@@ -9,9 +9,9 @@ pub enum Command {
     #[command(flatten)]
     Compensate(super::compensate::BenchCommand),
     #[command(flatten)]
-    Runtime(super::runtime::BenchCommand),
+    Runtime(super::runtime_bench::BenchCommand),
     #[command(flatten)]
-    Learning(super::learning::BenchCommand),
+    Learning(super::learning_bench::BenchCommand),
     #[command(flatten)]
     Transfer(super::transfer::BenchCommand),
     #[command(flatten)]
@@ -31,8 +31,8 @@ pub fn run(c: Command) -> anyhow::Result<()> {
     match c {
         Command::Camera(c) => super::camera::bench(c),
         Command::Compensate(c) => super::compensate::bench(c),
-        Command::Runtime(c) => super::runtime::bench(c),
-        Command::Learning(c) => super::learning::bench(c),
+        Command::Runtime(c) => super::runtime_bench::bench(c),
+        Command::Learning(c) => super::learning_bench::bench(c),
         Command::Transfer(c) => super::transfer::bench(c),
         Command::Swap(c) => super::adapt::bench(c),
         #[cfg(feature = "bridge")]

@@ -2,16 +2,15 @@
 //! eval` (accuracy and speed of the estimator against the synthetic camera's ground truth).
 
 use anyhow::{bail, Context, Result};
-use bowden_camera::{CameraConfig, CameraError, ReplaySource, SyntheticCamera};
-use bowden_estimator::eval::{run_eval, EvalOptions, FrameSource};
+use bowden_camera::{CameraConfig, ReplaySource, SyntheticCamera};
+use bowden_estimator::eval::{run_eval, EvalOptions};
 use bowden_estimator::record::EstimateRecord;
 use bowden_estimator::{Estimator, EstimatorConfig};
-use bowden_interfaces::{JointEstimate, MarkerSet, RgbdFrameHeader, N_MARKERS};
+use bowden_interfaces::{JointEstimate, MarkerSet};
 use bowden_kinematics::markers::MarkerGeometry;
 use bowden_kinematics::{JointsDeg, Robot};
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
-use nalgebra::Point3;
 use std::path::{Path, PathBuf};
 
 /// Robot and marker files shared by both subcommands.
@@ -179,32 +178,6 @@ fn estimate(dir: &Path, json: bool, hint: Option<&str>, model: &ModelArgs) -> Re
     Ok(())
 }
 
-/// The synthetic camera as the evaluation's frame source.
-struct CameraSource(SyntheticCamera);
-
-impl FrameSource for CameraSource {
-    type Error = CameraError;
-    fn width(&self) -> u32 {
-        self.0.width()
-    }
-    fn height(&self) -> u32 {
-        self.0.height()
-    }
-    fn render(
-        &mut self,
-        q: &JointsDeg,
-        i: u64,
-        rgb: &mut [u8],
-        depth: &mut [u16],
-    ) -> Result<RgbdFrameHeader, CameraError> {
-        self.0.render(q, i, rgb, depth)?;
-        Ok(self.0.header(i, i, 0))
-    }
-    fn truth_centres_cam_mm(&self, q: &JointsDeg) -> [Point3<f64>; N_MARKERS] {
-        self.0.marker_centres_cam_mm(q)
-    }
-}
-
 #[allow(clippy::too_many_arguments)]
 fn eval(
     frames: u32,
@@ -226,7 +199,7 @@ fn eval(
     }
     let (robot, geometry, cfg) = load_model(model)?;
     let cam_cfg = CameraConfig::load(camera)?;
-    let mut source = CameraSource(SyntheticCamera::new(robot.clone(), geometry.clone(), cam_cfg, seed));
+    let mut camera = SyntheticCamera::new(robot.clone(), geometry.clone(), cam_cfg, seed);
     let mut est = Estimator::new(robot, geometry, cfg);
     let opts = EvalOptions {
         frames,
@@ -234,7 +207,7 @@ fn eval(
         hint_offset_deg,
     };
     let bar = progress(frames as u64, "frames");
-    let report = run_eval(&mut est, &mut source, &opts, |_| bar.inc(1))?;
+    let report = run_eval(&mut est, &mut camera, &opts, |_| bar.inc(1))?;
     bar.finish_and_clear();
     if json {
         println!("{}", serde_json::to_string_pretty(&report)?);

@@ -7,6 +7,7 @@ use crate::home::Resolved;
 use anyhow::{bail, Context, Result};
 use bowden_evaluation::report::{summarise, write_report};
 use bowden_evaluation::session::{self, SlackEvents};
+use bowden_evaluation::tick;
 use bowden_evaluation::{
     camera_fps_for, pipeline_add_node, pipeline_variant, run_trajectory, EvalSettings, RunSpec, CONTROLLERS,
 };
@@ -218,129 +219,6 @@ struct Prepared {
     settle_ticks: u32,
 }
 
-/// `--tick-ms`: the pipeline's tick `base_tick_ns` divided into `tick_ms`; returns the tick and
-/// the integer ratio.
-fn shorter_tick(tick_ms: f64, base_tick_ns: u64) -> Result<(u64, u64)> {
-    let tick_ns = (tick_ms * 1e6).round();
-    if !(tick_ms.is_finite() && tick_ns >= 1e5 && tick_ns <= base_tick_ns as f64) {
-        bail!(
-            "--tick-ms {tick_ms}: must be between 0.1 ms and the pipeline's tick ({} ms)",
-            base_tick_ns as f64 / 1e6
-        );
-    }
-    let tick_ns = tick_ns as u64;
-    if !base_tick_ns.is_multiple_of(tick_ns) {
-        bail!(
-            "--tick-ms {tick_ms}: must divide the pipeline's tick of {} ms (the hold and the per-tick rate \
-             limits are kept by scaling with the ratio)",
-            base_tick_ns as f64 / 1e6
-        );
-    }
-    Ok((tick_ns, base_tick_ns / tick_ns))
-}
-
-/// A copy of controller config `src` in `dir` for a tick `scale` times shorter: its rate limit
-/// (deg/s) times `scale`, so the limit per tick is unchanged, and its model paths absolute.
-fn controller_for_tick(src: &std::path::Path, dir: &std::path::Path, scale: u64) -> Result<PathBuf> {
-    let text = std::fs::read_to_string(src).with_context(|| format!("{}", src.display()))?;
-    let mut t: toml::Table = toml::from_str(&text).with_context(|| format!("{}", src.display()))?;
-    let base = src.parent().unwrap_or(std::path::Path::new("."));
-    for key in ["model_fwd", "model_inv", "model_judge"] {
-        if let Some(toml::Value::String(m)) = t.get_mut(key) {
-            let given = PathBuf::from(m.as_str());
-            if given.is_relative() {
-                let path = if base.join(&given).exists() {
-                    base.join(&given)
-                } else {
-                    crate::home::resolve(&given)
-                        .with_context(|| format!("{}: {key}", src.display()))?
-                        .path
-                };
-                *m = std::path::absolute(path)?.display().to_string();
-            }
-        }
-    }
-    let output = t
-        .entry("output")
-        .or_insert_with(|| toml::Value::Table(toml::Table::new()))
-        .as_table_mut()
-        .with_context(|| format!("{}: [output] is not a table", src.display()))?;
-    let rate = match output.get("rate_limit_deg_s") {
-        Some(v) => v
-            .as_float()
-            .or_else(|| v.as_integer().map(|i| i as f64))
-            .with_context(|| format!("{}: output.rate_limit_deg_s is not a number", src.display()))?,
-        None => bowden_compensator::ControllerConfig::shipped().output.rate_limit_deg_s,
-    };
-    output.insert("rate_limit_deg_s".into(), toml::Value::Float(rate * scale as f64));
-    std::fs::create_dir_all(dir)?;
-    let out = dir.join(format!(
-        "tick-{}",
-        src.file_name()
-            .map(|f| f.to_string_lossy().into_owned())
-            .unwrap_or_default()
-    ));
-    std::fs::write(&out, toml::to_string(&t)?).with_context(|| format!("{}", out.display()))?;
-    Ok(out)
-}
-
-/// `params.KEY` of the node named `node` in pipeline file `template` (None if absent).
-fn node_param(template: &std::path::Path, node: &str, key: &str) -> Result<Option<toml::Value>> {
-    let t: toml::Table = toml::from_str(&std::fs::read_to_string(template)?)?;
-    Ok(t.get("node")
-        .and_then(|n| n.as_array())
-        .and_then(|nodes| {
-            nodes
-                .iter()
-                .find(|n| n.get("name").and_then(|x| x.as_str()) == Some(node))
-        })
-        .and_then(|n| n.get("params"))
-        .and_then(|p| p.get(key))
-        .cloned())
-}
-
-/// The controller config file of pipeline `template`'s compensator node (relative to the
-/// pipeline file, as the node resolves it).
-fn pipeline_controller(template: &std::path::Path) -> Result<PathBuf> {
-    let file = node_param(template, "compensator", "config")?
-        .and_then(|c| c.as_str().map(PathBuf::from))
-        .with_context(|| format!("{}: no compensator node with a config", template.display()))?;
-    Ok(if file.is_relative() {
-        template.parent().unwrap_or(std::path::Path::new(".")).join(file)
-    } else {
-        file
-    })
-}
-
-/// Sets `[runtime] period_us` of pipeline file `file` to `tick_ns`.
-fn set_period(file: &std::path::Path, tick_ns: u64) -> Result<()> {
-    let mut t: toml::Table = toml::from_str(&std::fs::read_to_string(file)?)?;
-    t.entry("runtime")
-        .or_insert_with(|| toml::Value::Table(toml::Table::new()))
-        .as_table_mut()
-        .context("[runtime] is not a table")?
-        .insert("period_us".into(), toml::Value::Integer((tick_ns / 1000) as i64));
-    std::fs::write(file, toml::to_string(&t)?)?;
-    Ok(())
-}
-
-/// The pipeline `template`'s actuator rate limit (deg/s, one or per joint) times `scale`.
-fn actuator_rate_for_tick(template: &std::path::Path, scale: u64) -> Result<toml::Value> {
-    // Absent: the actuator's default, 400 deg/s (components/actuator).
-    let rate = node_param(template, "actuator", "max_rate_deg_s")?.unwrap_or(toml::Value::Float(400.0));
-    let k = scale as f64;
-    let num = |v: &toml::Value| v.as_float().or_else(|| v.as_integer().map(|i| i as f64));
-    Ok(match rate {
-        toml::Value::Array(a) => toml::Value::Array(
-            a.iter()
-                .map(|v| num(v).map(|r| toml::Value::Float(r * k)))
-                .collect::<Option<Vec<_>>>()
-                .context("actuator max_rate_deg_s: not numbers")?,
-        ),
-        v => toml::Value::Float(num(&v).context("actuator max_rate_deg_s: not a number")? * k),
-    })
-}
-
 fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: [&str; 2]) -> Result<Prepared> {
     let repeats = a.repeats.unwrap_or(default_repeats);
     if repeats == 0 || a.settle_ticks == 0 {
@@ -372,7 +250,7 @@ fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: 
         PipelineConfig::load(&a.config.path, &Overrides::default(), bowden::registry::REGISTRY)?.period_ns();
     let (tick_ns, tick_scale) = match a.tick_ms {
         None => (base_tick_ns, 1),
-        Some(ms) => shorter_tick(ms, base_tick_ns)?,
+        Some(ms) => tick::shorter_tick(ms, base_tick_ns).context("--tick-ms")?,
     };
     let settle_ticks =
         u32::try_from(u64::from(a.settle_ticks) * tick_scale).context("--settle-ticks × the tick ratio")?;
@@ -405,9 +283,17 @@ fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: 
     let tick_controller = if tick_scale > 1 {
         let src = match &a.controller_config {
             Some(f) => f.path.clone(),
-            None => pipeline_controller(&a.config.path)?,
+            None => tick::pipeline_controller(&a.config.path)?,
         };
-        Some(controller_for_tick(&src, &work_dir, tick_scale)?)
+        let shipped_rate_deg_s = bowden_compensator::ControllerConfig::shipped().output.rate_limit_deg_s;
+        let find_model = |p: &std::path::Path| crate::home::path(p).map_err(|e| format!("{e:#}"));
+        Some(tick::controller_for_tick(
+            &src,
+            &work_dir,
+            tick_scale,
+            shipped_rate_deg_s,
+            &find_model,
+        )?)
     } else {
         None
     };
@@ -431,12 +317,12 @@ fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: 
             set.push((
                 "actuator",
                 "max_rate_deg_s",
-                actuator_rate_for_tick(&a.config.path, tick_scale)?,
+                tick::actuator_rate_for_tick(&a.config.path, tick_scale)?,
             ));
         }
         let file = pipeline_variant(&a.config.path, &set, &work_dir.join(format!("pipeline-{c}.toml")))?;
         if tick_scale > 1 {
-            set_period(&file, tick_ns)?;
+            tick::set_period(&file, tick_ns)?;
         }
         if let (Some(f), true) = (&a.adapt, c != "uncalibrated") {
             let abs = std::fs::canonicalize(&f.path).with_context(|| f.shown())?;

@@ -2,11 +2,9 @@
 //! over `bowden-learning`.
 
 use anyhow::{bail, Context, Result};
-use bowden_learning::bench::{bench_train, BenchOptions};
 use bowden_learning::dataset::{import_csv, import_npy, AngleUnit, ImportOptions};
 use bowden_learning::report::train_to_files;
 use bowden_learning::spacing::DecimationRule;
-use bowden_learning::sweep::{execute_runs, merge_sweep, plan_sweep, run_sweep, Selection, SweepConfig, SweepPlan};
 use bowden_learning::{Architecture, Backend, Direction, PhySource, Precision, SplitConfig, TcnBlock, TrainConfig};
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -21,7 +19,7 @@ pub enum Command {
     Train(TrainArgs),
     /// The paper's Fig. 10 study: every (architecture, L, direction) over several seeds, in
     /// parallel, resumable; mean ± SD of the best validation RMSE as Markdown, JSON and SVG.
-    Sweep(SweepArgs),
+    Sweep(super::sweep::SweepArgs),
     /// Import an external log (CSV with named columns, or a pair of .npy arrays) as a
     /// bowden dataset directory.
     Import(ImportArgs),
@@ -93,7 +91,7 @@ pub struct SplitArgs {
 }
 
 impl SplitArgs {
-    fn parse(&self) -> Result<(SplitConfig, PhySource)> {
+    pub(super) fn parse(&self) -> Result<(SplitConfig, PhySource)> {
         let phy = self.phy_source;
         Ok((
             SplitConfig {
@@ -166,74 +164,6 @@ pub struct TrainArgs {
 }
 
 #[derive(Args, Debug)]
-pub struct SweepArgs {
-    /// Architectures (comma-separated).
-    #[arg(long, default_value = "fnn,lstm,tcn,tcn-lstm", value_delimiter = ',',
-          value_parser = super::typed::<Architecture>(), ignore_case = true)]
-    archs: Vec<Architecture>,
-    /// Comma-separated sequence lengths.
-    #[arg(long, default_value = "10,50,65,80,100,120")]
-    seq_lens: String,
-    /// Seeds per configuration (0, 1, ... N−1).
-    #[arg(long, default_value_t = 3)]
-    seeds: u64,
-    /// Directions (comma-separated).
-    #[arg(long, default_value = "forward,inverse", value_delimiter = ',',
-          value_parser = super::typed::<Direction>(), ignore_case = true)]
-    directions: Vec<Direction>,
-    /// TCN block variants for tcn and tcn-lstm (comma-separated).
-    #[arg(long, default_value = "relu-linear,relu-relu", value_delimiter = ',',
-          value_parser = super::typed::<TcnBlock>(), ignore_case = true)]
-    tcn_blocks: Vec<TcnBlock>,
-    /// Training epochs of every run.
-    #[arg(long, default_value_t = 30)]
-    epochs: usize,
-    /// Stop a run after N epochs without a better validation RMSE.
-    #[arg(long)]
-    early_stop: Option<usize>,
-    /// Dataset directory (dataset.csv + manifest.json).
-    #[arg(long)]
-    data: PathBuf,
-    /// Output directory (runs/ holds one JSON per finished run: rerunning resumes).
-    #[arg(long)]
-    out: PathBuf,
-    /// Configurations trained at once (one per thread).
-    #[arg(long)]
-    jobs: Option<usize>,
-    #[command(flatten)]
-    split: SplitArgs,
-    /// Print the runs instead of training: index, key, fingerprint (data hash + code version
-    /// + these settings) and status in --out; --json for JSON.
-    #[arg(long, conflicts_with_all = ["shard", "run", "merge"])]
-    plan: bool,
-    /// Train only shard I of N: the runs whose index ≡ I (mod N), e.g. a Slurm array task's
-    /// "$SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT" or a Kubernetes Indexed Job's
-    /// "$JOB_COMPLETION_INDEX/N"; no summary is written (see --merge).
-    #[arg(long, value_name = "I/N", conflicts_with_all = ["run", "merge"])]
-    shard: Option<String>,
-    /// Train only the run of index K (from --plan); no summary is written (see --merge).
-    #[arg(long, value_name = "K", conflicts_with = "merge")]
-    run: Option<usize>,
-    /// Train nothing: check every run file in --out/runs against the plan (same data, code and
-    /// settings; none missing) and write sweep.md, sweep.json and sweep.svg.
-    #[arg(long)]
-    merge: bool,
-    /// Use the portable training kernels instead of AVX-512 where the CPU has it: the same
-    /// bits on every x86-64 CPU, for shards on nodes that differ (slower).
-    #[arg(long)]
-    portable_kernels: bool,
-    /// With --plan: print the plan as JSON on stdout instead of the table.
-    #[arg(long, requires = "plan")]
-    json: bool,
-    /// With --plan: also write the plan JSON to FILE.
-    #[arg(long, value_name = "FILE", requires = "plan")]
-    json_out: Option<PathBuf>,
-    /// Overwrite --json-out if it exists.
-    #[arg(long)]
-    force: bool,
-}
-
-#[derive(Args, Debug)]
 pub struct ImportArgs {
     /// CSV log with a header.
     #[arg(long, conflicts_with_all = ["npy_cmd", "npy_phy"])]
@@ -273,47 +203,7 @@ pub struct ImportArgs {
     period_ns: i64,
 }
 
-#[derive(Subcommand)]
-pub enum BenchCommand {
-    /// Seconds per training epoch: 24,565 windows of L = 80, batch 32, J = 5 (synthetic
-    /// data), against PyTorch's epoch timed in the same run (--pytorch PYTHON) or else the
-    /// issue's figures from another machine (2 threads: 3.65 s TCN, 6.4 s LSTM).
-    Train(BenchTrainArgs),
-}
-
-#[derive(Args, Debug)]
-pub struct BenchTrainArgs {
-    /// Architectures (comma-separated); default: tcn and lstm.
-    #[arg(long, value_delimiter = ',', value_parser = super::typed::<Architecture>(), ignore_case = true)]
-    arch: Vec<Architecture>,
-    /// Epochs timed (the median is reported).
-    #[arg(long, default_value_t = 3)]
-    epochs: usize,
-    /// Worker threads.
-    #[arg(long, default_value_t = 2)]
-    threads: usize,
-    /// fused (hand-written kernels) or candle (autograd reference).
-    #[arg(long, default_value = "fused", value_parser = super::typed::<Backend>(), ignore_case = true)]
-    backend: Backend,
-    /// Windows per epoch (default: the paper's 24,565).
-    #[arg(long, default_value_t = bowden_learning::bench::PAPER_TRAIN_WINDOWS)]
-    windows: usize,
-    /// Input sequence length L.
-    #[arg(long, default_value_t = 80)]
-    seq_len: usize,
-    /// f32, or bf16 (mixed precision for the LSTM's recurrent products).
-    #[arg(long, default_value = "f32", value_parser = super::typed::<Precision>(), ignore_case = true)]
-    precision: Precision,
-    /// A Python interpreter with torch: times PyTorch's epoch of the same networks and
-    /// shapes in this run, just before bowden's (with bf16 also under autocast(bfloat16)).
-    #[arg(long)]
-    pytorch: Option<PathBuf>,
-    /// Print JSON instead of a table.
-    #[arg(long)]
-    json: bool,
-}
-
-fn parse_usizes(s: &str, what: &str) -> Result<Vec<usize>> {
+pub(super) fn parse_usizes(s: &str, what: &str) -> Result<Vec<usize>> {
     s.split(',')
         .map(|p| p.trim())
         .filter(|p| !p.is_empty())
@@ -387,7 +277,7 @@ pub fn run(c: Command) -> Result<()> {
             }
             Ok(())
         }
-        Command::Sweep(a) => sweep(a),
+        Command::Sweep(a) => super::sweep::sweep(a),
         Command::Score(a) => score(a),
         Command::StampSupport(a) => {
             let (split, phy) = a.split.parse()?;
@@ -453,225 +343,11 @@ pub fn run(c: Command) -> Result<()> {
     }
 }
 
-fn sweep(a: SweepArgs) -> Result<()> {
-    let (split, phy) = a.split.parse()?;
-    super::dataset_dir("--data", &a.data)?;
-    if a.portable_kernels {
-        // Before any kernel runs: the choice is made once per process.
-        bowden_learning::kernels::simd::force_portable(true);
-    }
-    let cfg = SweepConfig {
-        archs: a.archs.clone(),
-        seq_lens: parse_usizes(&a.seq_lens, "seq-lens")?,
-        seeds: a.seeds,
-        directions: a.directions.clone(),
-        tcn_blocks: a.tcn_blocks.clone(),
-        epochs: a.epochs,
-        early_stop: a.early_stop,
-        split,
-        phy_source: phy,
-        jobs: a
-            .jobs
-            .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
-    };
-    let into = || format!("sweep into {}", a.out.display());
-    let selection = match (&a.shard, a.run) {
-        (Some(s), _) => Some(s.parse::<Selection>().map_err(anyhow::Error::msg)?),
-        (None, Some(k)) => Some(Selection::Run(k)),
-        (None, None) => None,
-    };
-    if !(a.plan || a.merge || selection.is_some()) {
-        let summary = run_sweep(&a.data, &a.out, &cfg, true).with_context(into)?;
-        println!("{}", summary.markdown);
-        println!(
-            "wrote {0}/sweep.md, {0}/sweep.json, {0}/sweep.svg ({1} runs, {2} reused from an earlier sweep)",
-            a.out.display(),
-            summary.runs,
-            summary.reused
-        );
-        return Ok(());
-    }
-    let (mut plan, ds) = plan_sweep(&a.data, &cfg).with_context(into)?;
-    if a.plan {
-        super::refuse_overwrite(a.json_out.as_slice(), a.force, "--json-out")?;
-        plan.check_status(&a.out);
-        let json = serde_json::to_string_pretty(&plan)?;
-        if let Some(j) = &a.json_out {
-            std::fs::write(j, format!("{json}\n")).with_context(|| format!("{}", j.display()))?;
-        }
-        if a.json {
-            println!("{json}");
-        } else {
-            print_plan(&plan, &a.out);
-        }
-        return Ok(());
-    }
-    if let Some(selection) = selection {
-        println!(
-            "sweep plan {}: {} runs ({}, data {} FNV-1a {}); {selection}",
-            plan.fingerprint,
-            plan.runs.len(),
-            plan.code_version,
-            plan.data,
-            plan.data_fnv1a64
-        );
-        let report = execute_runs(&plan, &ds, &a.out, selection, cfg.jobs, true).with_context(into)?;
-        for (i, why) in &report.redone {
-            println!("run {i}: redone, its file was unusable: {why}");
-        }
-        for r in &report.runs {
-            println!(
-                "run {} {}: {:.3}° ({})",
-                r.index,
-                r.key.name(),
-                r.best_val_rmse_deg,
-                if r.trained {
-                    "trained"
-                } else {
-                    "kept from an earlier process"
-                }
-            );
-        }
-        println!(
-            "{}/runs: {} of {} runs written or kept ({} trained, {} kept); when every shard has finished: \
-             bowden sweep ... --merge",
-            a.out.display(),
-            report.runs.len(),
-            plan.runs.len(),
-            report.trained,
-            report.reused
-        );
-        return Ok(());
-    }
-    let summary = merge_sweep(&plan, &a.out).with_context(into)?;
-    println!("{}", summary.markdown);
-    println!(
-        "wrote {0}/sweep.md, {0}/sweep.json, {0}/sweep.svg ({1} runs merged from {0}/runs, plan {2})",
-        a.out.display(),
-        summary.runs,
-        plan.fingerprint
-    );
-    Ok(())
-}
-
-fn print_plan(plan: &SweepPlan, out: &std::path::Path) {
-    println!(
-        "sweep plan {}: {} runs; {}; data {} (FNV-1a {}); sharding {}",
-        plan.fingerprint,
-        plan.runs.len(),
-        plan.code_version,
-        plan.data,
-        plan.data_fnv1a64,
-        plan.sharding
-    );
-    let width = plan.runs.iter().map(|r| r.key.name().len()).max().unwrap_or(0);
-    println!(
-        "{:>5}  {:width$}  {:16}  status in {}",
-        "index",
-        "key",
-        "fingerprint",
-        out.display()
-    );
-    for r in &plan.runs {
-        println!(
-            "{:>5}  {:width$}  {:16}  {}",
-            r.index,
-            r.key.name(),
-            r.fingerprint,
-            r.status.as_deref().unwrap_or("")
-        );
-    }
-}
-
 fn split_names(s: &str) -> Vec<String> {
     s.split(',')
         .map(|p| p.trim().to_string())
         .filter(|p| !p.is_empty())
         .collect()
-}
-
-pub fn bench(c: BenchCommand) -> Result<()> {
-    match c {
-        BenchCommand::Train(a) => {
-            let archs: Vec<Architecture> = match a.arch.as_slice() {
-                [] => vec![Architecture::Tcn, Architecture::Lstm],
-                some => some.to_vec(),
-            };
-            let (backend, precision) = (a.backend, a.precision);
-            let mut results = Vec::new();
-            for arch in archs {
-                let mut o = BenchOptions::paper(arch);
-                o.epochs = a.epochs;
-                o.threads = a.threads;
-                o.backend = backend;
-                o.windows = a.windows;
-                o.seq_len = a.seq_len;
-                o.precision = precision;
-                // PyTorch first, then bowden, back to back on the same machine.
-                let torch = match &a.pytorch {
-                    Some(python) => {
-                        let bf16 = precision == Precision::Bf16;
-                        let f = bowden_learning::bench::pytorch_epoch_seconds(python, &o, false)
-                            .with_context(|| format!("--pytorch: timing PyTorch's {arch} epoch"))?;
-                        let b = if bf16 {
-                            Some(
-                                bowden_learning::bench::pytorch_epoch_seconds(python, &o, true)
-                                    .with_context(|| format!("--pytorch: timing PyTorch's bf16 {arch} epoch"))?,
-                            )
-                        } else {
-                            None
-                        };
-                        Some((f, b))
-                    }
-                    None => None,
-                };
-                let mut r = bench_train(&o).with_context(|| format!("bench train --arch {arch}"))?;
-                if let Some((f, b)) = torch {
-                    r.set_pytorch_measured(f, b);
-                }
-                if !a.json {
-                    let round = |v: &[f64]| v.iter().map(|s| (s * 1000.0).round() / 1000.0).collect::<Vec<_>>();
-                    println!(
-                        "{:8} {:6} {} L={} {} windows, batch {}, {} thread(s), {}: {:.3} s/epoch median, {:.3} min, \
-                         wall {:?} s, CPU {:?} s, load avg {}{}{}",
-                        arch.as_str(),
-                        format!("{backend:?}").to_lowercase(),
-                        precision,
-                        o.seq_len,
-                        o.windows,
-                        o.batch_size,
-                        o.threads,
-                        r.simd,
-                        r.median_seconds,
-                        r.min_seconds,
-                        round(&r.epoch_seconds),
-                        round(&r.epoch_cpu_seconds),
-                        r.load_average_1min.map_or("?".into(), |l| format!("{l:.2}")),
-                        match (r.pytorch_seconds, r.speedup_vs_pytorch) {
-                            (Some(p), Some(s)) if r.pytorch_measured => format!(
-                                "; PyTorch f32 ({} threads, measured in this run) {p:.3} s/epoch → {s:.2}× its speed",
-                                o.threads
-                            ),
-                            (Some(p), Some(s)) => format!(
-                                "; PyTorch f32 (2 threads, the issue's machine; --pytorch measures here) {p} s/epoch → \
-                                 {s:.2}× its speed"
-                            ),
-                            _ => String::new(),
-                        },
-                        match (r.pytorch_bf16_seconds, r.speedup_vs_pytorch_bf16) {
-                            (Some(p), Some(s)) => format!("; PyTorch autocast bf16 {p:.3} s/epoch → {s:.2}×"),
-                            _ => String::new(),
-                        }
-                    );
-                }
-                results.push(r);
-            }
-            if a.json {
-                println!("{}", serde_json::to_string_pretty(&results)?);
-            }
-            Ok(())
-        }
-    }
 }
 
 fn score(a: ScoreArgs) -> Result<()> {

@@ -1,11 +1,12 @@
 //! Accuracy and speed of the estimator against ground truth: seeded random configurations
-//! over the workspace are rendered by a [`FrameSource`] (the synthetic camera, wired in by
-//! the CLI and the tests; this crate does not depend on the camera crate), estimated, and
+//! over the workspace are rendered by the synthetic camera (the only source that knows the truth
+//! of every frame), estimated, and
 //! compared with the truth. Produces an [`EvalReport`] (JSON via serde, a Markdown table,
 //! an SVG plot).
 
 use crate::{Estimator, MarkerStatus};
-use bowden_interfaces::{marker, JointEstimate, MarkerSet, RgbdFrameHeader, N_MARKERS};
+use bowden_camera::SyntheticCamera;
+use bowden_interfaces::{marker, JointEstimate, MarkerSet, N_MARKERS};
 use bowden_kinematics::{JointsDeg, Robot, JOINT_NAMES, N_JOINTS};
 use bowden_latency::{LatencyHistogram, Percentiles};
 use nalgebra::Point3;
@@ -20,23 +21,6 @@ pub const GOAL_CENTRE_RMS_MM: f64 = 0.5;
 pub const GOAL_JOINT_RMS_DEG: f64 = 1.0;
 pub const GOAL_DETECTION_RATE: f64 = 0.99;
 pub const GOAL_P99_US: f64 = 3000.0;
-
-/// Renders frames with known truth.
-pub trait FrameSource {
-    type Error: std::fmt::Display;
-    fn width(&self) -> u32;
-    fn height(&self) -> u32;
-    /// Renders `q_deg` as frame `index` into the planes and returns its header.
-    fn render(
-        &mut self,
-        q_deg: &JointsDeg,
-        index: u64,
-        rgb: &mut [u8],
-        depth_mm: &mut [u16],
-    ) -> Result<RgbdFrameHeader, Self::Error>;
-    /// True marker centres in the camera frame, mm, in `bowden_interfaces::marker` order.
-    fn truth_centres_cam_mm(&self, q_deg: &JointsDeg) -> [Point3<f64>; N_MARKERS];
-}
 
 /// A uniformly random configuration within the joint limits whose jaws do not cross.
 pub fn random_configuration(robot: &Robot, rng: &mut ChaCha8Rng) -> JointsDeg {
@@ -146,12 +130,13 @@ impl Rms {
 /// Why an evaluation stopped.
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {
-    /// The frame source could not give frame `frame`.
-    #[error("rendering frame {frame} (q = {q_deg:?} deg): {message}")]
-    Source {
+    /// The camera could not render frame `frame`.
+    #[error("rendering frame {frame} (q = {q_deg:?} deg): {source}")]
+    Render {
         frame: u32,
         q_deg: JointsDeg,
-        message: String,
+        #[source]
+        source: bowden_camera::CameraError,
     },
     /// The estimator refused frame `frame` as a whole.
     #[error("frame {frame}: {source}")]
@@ -163,13 +148,13 @@ pub enum EvalError {
 }
 
 /// Runs the evaluation. `progress` is called after each frame with the number done.
-pub fn run_eval<S: FrameSource>(
+pub fn run_eval(
     estimator: &mut Estimator,
-    source: &mut S,
+    camera: &mut SyntheticCamera,
     opts: &EvalOptions,
     mut progress: impl FnMut(u32),
 ) -> Result<EvalReport, EvalError> {
-    let (w, h) = (source.width(), source.height());
+    let (w, h) = (camera.width(), camera.height());
     let mut rgb = vec![0u8; w as usize * h as usize * 3];
     let mut depth = vec![0u16; w as usize * h as usize];
     estimator.reserve_frame(w, h);
@@ -189,13 +174,14 @@ pub fn run_eval<S: FrameSource>(
         let hint = opts
             .hint_offset_deg
             .map(|d| core::array::from_fn(|k| q[k] + if d > 0.0 { rng.random_range(-d..=d) } else { 0.0 }));
-        let header = source
+        camera
             .render(&q, i as u64, &mut rgb, &mut depth)
-            .map_err(|e| EvalError::Source {
+            .map_err(|source| EvalError::Render {
                 frame: i,
                 q_deg: q,
-                message: e.to_string(),
+                source,
             })?;
+        let header = camera.header(i as u64, i as u64, 0);
         let t0 = Instant::now();
         estimator
             .estimate(&header, &rgb, &depth, hint, &mut ms, &mut je)
@@ -203,7 +189,7 @@ pub fn run_eval<S: FrameSource>(
         let dt_ns = t0.elapsed().as_nanos() as u64;
         times.record(dt_ns);
 
-        let truth = source.truth_centres_cam_mm(&q);
+        let truth = camera.marker_centres_cam_mm(&q);
         for m in 0..N_MARKERS {
             if ms.valid_mask & (1 << m) != 0 {
                 marker_found[m] += 1;

@@ -8,6 +8,7 @@ pub mod figures;
 pub mod metrics;
 pub mod report;
 pub mod session;
+pub mod tick;
 
 use bowden_interfaces::{services, CompensationMode, JointCommand, JointEstimate, JointTarget, PlantState};
 use bowden_kinematics::{JointsDeg, N_JOINTS};

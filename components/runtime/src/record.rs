@@ -599,12 +599,12 @@ impl<T: Message> Source for SampleSource<T> {
     }
 }
 
-struct FrameSource {
+struct FrameTap {
     input: FrameInput,
     last_seq: Option<u64>,
 }
 
-impl Source for FrameSource {
+impl Source for FrameTap {
     fn drain(&mut self, upto: Option<u64>, idx: u16, w: &mut LogWriter, gaps: &mut u64) -> Result<u64, LogError> {
         let mut n = 0;
         loop {
@@ -727,7 +727,7 @@ impl RecorderStage {
                 }))
             }
             fn frame(self) -> Self::Output {
-                Ok(Box::new(FrameSource {
+                Ok(Box::new(FrameTap {
                     input: self.env.ports.frame_input(self.service, 4)?,
                     last_seq: None,
                 }))

@@ -10,7 +10,7 @@ use bowden_estimator::eval::{run_eval, EvalOptions};
 
 fn evaluate(frames: u32, seed: u64, hint_offset_deg: Option<f64>) -> bowden_estimator::eval::EvalReport {
     let mut est = common::estimator();
-    let mut src = common::CameraSource(common::camera(seed));
+    let mut src = common::camera(seed);
     let opts = EvalOptions {
         frames,
         seed,

@@ -1,39 +1,13 @@
-//! Shared helpers of the estimator's tests: the synthetic camera as a [`FrameSource`].
+//! Shared helpers of the estimator's tests: the synthetic camera and the paper's estimator.
 
 #![allow(dead_code)]
 
-use bowden_camera::{CameraConfig, CameraError, SyntheticCamera};
-use bowden_estimator::eval::FrameSource;
+use bowden_camera::{CameraConfig, SyntheticCamera};
 use bowden_estimator::{Estimator, EstimatorConfig};
 use bowden_interfaces::{RgbdFrameHeader, N_MARKERS};
 use bowden_kinematics::markers::MarkerGeometry;
 use bowden_kinematics::{JointsDeg, Robot};
 use nalgebra::Point3;
-
-pub struct CameraSource(pub SyntheticCamera);
-
-impl FrameSource for CameraSource {
-    type Error = CameraError;
-    fn width(&self) -> u32 {
-        self.0.width()
-    }
-    fn height(&self) -> u32 {
-        self.0.height()
-    }
-    fn render(
-        &mut self,
-        q: &JointsDeg,
-        index: u64,
-        rgb: &mut [u8],
-        depth: &mut [u16],
-    ) -> Result<RgbdFrameHeader, CameraError> {
-        self.0.render(q, index, rgb, depth)?;
-        Ok(self.0.header(index, index, 0))
-    }
-    fn truth_centres_cam_mm(&self, q: &JointsDeg) -> [Point3<f64>; N_MARKERS] {
-        self.0.marker_centres_cam_mm(q)
-    }
-}
 
 pub fn camera(seed: u64) -> SyntheticCamera {
     SyntheticCamera::new(

@@ -9,7 +9,7 @@ use bowden_interfaces::marker;
 #[test]
 fn per_marker_bars_are_named_by_their_markers() {
     let mut est = common::estimator();
-    let mut src = common::CameraSource(common::camera(7));
+    let mut src = common::camera(7);
     let opts = EvalOptions {
         frames: 4,
         seed: 7,
