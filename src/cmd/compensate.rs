@@ -27,6 +27,8 @@ pub enum Command {
     /// gives the mean and max predicted error, and with `[safety] never_worse` how often the
     /// refinement's result, its start or the target unchanged was sent (many targets sent
     /// unchanged: the models do not fit this robot); run with `--mode uncalibrated` to compare.
+    /// Every row the robot's joint limits or jaw rule changed is counted (per joint) and
+    /// reported, with a warning when more than 1 % of the rows were.
     Compensate(CompensateArgs),
 }
 
@@ -77,6 +79,10 @@ pub struct CompensateArgs {
     /// (e.g. 0.36° per row for the shipped 360°/s at N = 1000000, a 1 kHz stream).
     #[arg(long)]
     period_ns: Option<u64>,
+    /// Also write the summary as JSON to FILE: steps, predicted error, stop reasons, and how
+    /// many rows the joint limits (per joint, lowered / raised) and the rate limit changed.
+    #[arg(long, value_name = "FILE")]
+    summary_json: Option<PathBuf>,
 }
 
 #[derive(Subcommand)]
@@ -244,6 +250,37 @@ fn compensate(a: CompensateArgs) -> anyhow::Result<()> {
     );
     if let Some(line) = comp.safety_summary() {
         eprintln!("{line}");
+    }
+    let robot_file = a.models.robot.as_ref().map_or_else(
+        || "the shipped configs/robot.toml".to_string(),
+        |p| p.display().to_string(),
+    );
+    let names: Vec<String> = (1..=comp.joints()).map(|k| format!("q{k}")).collect();
+    let names: Vec<&str> = names.iter().map(String::as_str).collect();
+    let by_joint = s.clamps_by_joint(&names);
+    eprintln!(
+        "joint limits ({robot_file}): changed {} of {} rows ({:.1} %){}; the rate limit changed {}",
+        s.joint_limited_rows,
+        s.steps,
+        100.0 * s.joint_limited_fraction(),
+        if by_joint.is_empty() {
+            String::new()
+        } else {
+            format!(": {by_joint}")
+        },
+        s.rate_limited_rows
+    );
+    if s.joint_limited_fraction() > offline::LOUD_CLAMP_FRACTION {
+        eprintln!(
+            "warning: the joint limits of {robot_file} changed {:.1} % of the commands ({by_joint}): these targets \
+             go where that robot file says the robot cannot. If this robot can, its limits belong in its own robot \
+             file (--robot); if not, the targets are not this robot's.",
+            100.0 * s.joint_limited_fraction()
+        );
+    }
+    if let Some(p) = &a.summary_json {
+        let text = serde_json::to_string_pretty(&s).context("serialising the summary")?;
+        std::fs::write(p, text + "\n").with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(())
 }

@@ -288,3 +288,55 @@ fn compensate_help_documents_every_output_column() {
     }
     assert!(help.contains("--period-ns") && help.contains("--cols") && help.contains("--force"));
 }
+
+/// Every row the robot's limits change is counted per joint, on stderr and in the summary JSON,
+/// and a file clamped on more than 1 % of its rows gets a warning (issue #42: never silent).
+#[test]
+fn compensate_counts_and_reports_every_clamp() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |name: &str, q4_deg: &dyn Fn(usize) -> f64| {
+        let targets = dir.path().join(format!("{name}.csv"));
+        let mut csv = String::from("q1,q2,q3,q4,q5\n");
+        for k in 0..10 {
+            csv += &format!("1,2,3,{},0\n", q4_deg(k));
+        }
+        std::fs::write(&targets, csv).unwrap();
+        let summary = dir.path().join(format!("{name}.json"));
+        let out = bowden()
+            .args(["compensate", "--mode", "uncalibrated", "--targets"])
+            .arg(&targets)
+            .arg("--out")
+            .arg(dir.path().join(format!("{name}-out.csv")))
+            .arg("--summary-json")
+            .arg(&summary)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(out.status.success(), "{stderr}");
+        let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
+        (stderr, json)
+    };
+    // The shipped robot's q4 limit is -44 deg: three of ten rows ask for -55.
+    let (stderr, json) = run("clamped", &|k| if k % 3 == 0 && k > 0 { -55.0 } else { -10.0 });
+    assert_eq!(json["joint_limited_rows"], 3, "{json}");
+    assert_eq!(
+        json["raised_rows_per_joint"],
+        serde_json::json!([0, 0, 0, 3, 0]),
+        "{json}"
+    );
+    assert_eq!(
+        json["lowered_rows_per_joint"],
+        serde_json::json!([0, 0, 0, 0, 0]),
+        "{json}"
+    );
+    assert!(
+        stderr.contains("changed 3 of 10 rows (30.0 %): q4 raised 3"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("warning: the joint limits of"), "{stderr}");
+    // Inside the limits: counted as zero, no warning.
+    let (stderr, json) = run("inside", &|_| -10.0);
+    assert_eq!(json["joint_limited_rows"], 0, "{json}");
+    assert!(stderr.contains("changed 0 of 10 rows (0.0 %)"), "{stderr}");
+    assert!(!stderr.contains("warning:"), "{stderr}");
+}

@@ -30,8 +30,7 @@ pub mod params;
 pub mod wire;
 
 use bowden_interfaces::{services, SampleHeader};
-use bowden_runtime::node::{NodeKind, ParamPorts, Read, Schedule};
-use bowden_runtime::ports::{is_service, known_services};
+use bowden_runtime::node::{service_list, NodeKind, ParamPorts, ParamPortsError, Read, Schedule};
 use bowden_runtime::ports::{
     visit_payload, FrameInput, FrameOutput, Input, Output, PayloadVisitor, PortContext, PortError, Wakeup,
 };
@@ -294,42 +293,20 @@ pub const KIND: NodeKind = NodeKind {
 
 /// The services a bridge's `params.export` (iceoryx2 → network) and `params.import`
 /// (network → iceoryx2) name (validated: known, not both ways, not the launcher's own).
-pub fn bridge_ports(params: &toml::Table) -> Result<ParamPorts, String> {
-    let list = |key: &str| -> Result<Vec<String>, String> {
-        let Some(v) = params.get(key) else {
-            return Ok(Vec::new());
-        };
-        let arr = v
-            .as_array()
-            .ok_or(format!("`{key}` must be an array of service names"))?;
-        let mut out: Vec<String> = Vec::new();
-        for s in arr {
-            let s = s.as_str().ok_or(format!("`{key}` must be an array of strings"))?;
-            if !is_service(s) {
-                return Err(format!(
-                    "`{key}`: unknown service `{s}` (known: {})",
-                    known_services().join(", ")
-                ));
-            }
-            if s == services::CLOCK || s == services::COMPONENT_STATUS {
-                return Err(format!(
-                    "`{key}`: `{s}` belongs to the launcher of each side and is not bridged"
-                ));
-            }
-            if out.iter().any(|o| o == s) {
-                return Err(format!("`{key}`: service `{s}` listed twice"));
-            }
-            out.push(s.to_string());
-        }
-        Ok(out)
+pub fn bridge_ports(params: &toml::Table) -> Result<ParamPorts, ParamPortsError> {
+    let launchers = |s: &str| {
+        (s == services::CLOCK || s == services::COMPONENT_STATUS)
+            .then_some("belongs to the launcher of each side and is not bridged")
     };
-    let export = list("export")?;
-    let import = list("import")?;
+    let export = service_list(params, "export", launchers)?;
+    let import = service_list(params, "import", launchers)?;
     if let Some(s) = export.iter().find(|s| import.contains(s)) {
-        return Err(format!("service `{s}` is both exported and imported"));
+        return Err(ParamPortsError::BothWays { service: s.clone() });
     }
     if export.is_empty() && import.is_empty() {
-        return Err("a bridge needs `export = [...]` and/or `import = [...]`".into());
+        return Err(ParamPortsError::Missing {
+            what: "a bridge needs `export = [...]` and/or `import = [...]`",
+        });
     }
     Ok(ParamPorts {
         inputs: export.into_iter().map(|s| (s, Read::Side)).collect(),

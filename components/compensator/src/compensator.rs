@@ -77,6 +77,11 @@ pub struct StepOutput {
     pub upper_mask: u32,
     /// Likewise at a lower bound.
     pub lower_mask: u32,
+    /// Joints (bit k = joint k) the robot's joint limits or jaw rule lowered this step
+    /// (`joint_limited` says whether any did); counted by `bowden compensate` and reported.
+    pub joint_limit_lowered_mask: u32,
+    /// Likewise raised.
+    pub joint_limit_raised_mask: u32,
     /// History entries the window prefixes this step ran on lag behind the history (the
     /// larger of the two models). Always 0 unless a prefix worker in
     /// [`PrefixSync::Newest`] mode had not finished the newest one
@@ -131,6 +136,8 @@ impl Default for StepOutput {
             correction_deg: [0.0; MAX_JOINTS],
             upper_mask: 0,
             lower_mask: 0,
+            joint_limit_lowered_mask: 0,
+            joint_limit_raised_mask: 0,
             prefix_lag: 0,
         }
     }
@@ -777,6 +784,8 @@ impl Compensator {
             out.correction_deg = [0.0; MAX_JOINTS];
             out.upper_mask = 0;
             out.lower_mask = 0;
+            out.joint_limit_lowered_mask = 0;
+            out.joint_limit_raised_mask = 0;
             out.prefix_lag = 0;
             out.elapsed_ns = t0.elapsed().as_nanos() as u64;
             return Err(e);
@@ -1005,6 +1014,8 @@ impl Compensator {
             }
         }
         out.joint_limited = false;
+        out.joint_limit_lowered_mask = 0;
+        out.joint_limit_raised_mask = 0;
         if self.joint_limits {
             let mut a = [0.0f64; N_JOINTS];
             a.copy_from_slice(&cmd[..N_JOINTS]);
@@ -1015,8 +1026,10 @@ impl Compensator {
             for k in 0..N_JOINTS {
                 if clamped[k] < a[k] {
                     upper |= 1 << k;
+                    out.joint_limit_lowered_mask |= 1 << k;
                 } else if clamped[k] > a[k] {
                     lower |= 1 << k;
+                    out.joint_limit_raised_mask |= 1 << k;
                 }
             }
             cmd[..N_JOINTS].copy_from_slice(&clamped);

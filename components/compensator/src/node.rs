@@ -67,6 +67,11 @@ struct CompensatorStage {
     out: Output<JointCommand>,
     step_out: StepOutput,
     bad_size: u64,
+    /// Commands the robot's joint limits or jaw rule changed, and per joint how often they
+    /// lowered / raised it: never silent (the summary says how many, issue #42).
+    limited_commands: u64,
+    limit_lowered: [u64; MAX_JOINTS],
+    limit_raised: [u64; MAX_JOINTS],
     feedback: Option<FeedbackPath>,
     /// `[feedback]` is enabled but not applied in this mode (uncalibrated).
     feedback_idle: bool,
@@ -181,6 +186,9 @@ fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         out: env.output(services::JOINT_COMMAND)?,
         step_out: StepOutput::default(),
         bad_size: 0,
+        limited_commands: 0,
+        limit_lowered: [0; MAX_JOINTS],
+        limit_raised: [0; MAX_JOINTS],
         feedback,
         feedback_idle: fb_cfg.enabled && !applied,
     }))
@@ -308,6 +316,13 @@ impl Stage for CompensatorStage {
         if !ok {
             return Ok(StepReport::IDLE);
         }
+        if self.step_out.joint_limited {
+            self.limited_commands += 1;
+            for k in 0..n {
+                self.limit_lowered[k] += u64::from(self.step_out.joint_limit_lowered_mask >> k & 1);
+                self.limit_raised[k] += u64::from(self.step_out.joint_limit_raised_mask >> k & 1);
+            }
+        }
         let mut cmd = JointCommand::default();
         self.step_out.fill_joint_command(&mut cmd);
         if cx.reproducible() {
@@ -337,10 +352,19 @@ impl Stage for CompensatorStage {
     }
 
     fn summary(&self) -> Vec<String> {
+        let mut by_joint = String::new();
+        for k in 0..self.comp.joints() {
+            for (what, n) in [("lowered", self.limit_lowered[k]), ("raised", self.limit_raised[k])] {
+                if n > 0 {
+                    by_joint += &format!("{}q{} {what} {n}", if by_joint.is_empty() { ": " } else { ", " }, k + 1);
+                }
+            }
+        }
         let mut v = vec![format!(
-            "compensator: mode {}, rejected targets {}",
+            "compensator: mode {}, rejected targets {}, commands changed by the joint limits {}{by_joint}",
             self.comp.mode(),
-            self.comp.rejected_inputs() + self.bad_size
+            self.comp.rejected_inputs() + self.bad_size,
+            self.limited_commands
         )];
         if let Some(line) = self.comp.safety_summary() {
             v.push(line);

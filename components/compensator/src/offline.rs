@@ -115,6 +115,46 @@ pub struct OfflineSummary {
     pub mean_iterations: f64,
     pub mean_forward_evals: f64,
     pub stop_reasons: Vec<(String, usize)>,
+    /// Rows whose command the robot's joint limits or jaw rule changed (never silent: the
+    /// command line says how many, and loudly above [`LOUD_CLAMP_FRACTION`]).
+    pub joint_limited_rows: usize,
+    /// Per joint, rows whose command the limits lowered (it wanted more than the upper limit).
+    pub lowered_rows_per_joint: Vec<usize>,
+    /// Per joint, rows whose command the limits raised.
+    pub raised_rows_per_joint: Vec<usize>,
+    /// Rows whose command the output rate limit changed.
+    pub rate_limited_rows: usize,
+}
+
+/// A command file clamped on more than this fraction of its rows is not this robot's, or the
+/// robot file's limits are not: `bowden compensate` says so as a warning, not only a count.
+pub const LOUD_CLAMP_FRACTION: f64 = 0.01;
+
+impl OfflineSummary {
+    /// Fraction of the rows the joint limits changed (0 without rows).
+    pub fn joint_limited_fraction(&self) -> f64 {
+        if self.steps == 0 {
+            0.0
+        } else {
+            self.joint_limited_rows as f64 / self.steps as f64
+        }
+    }
+
+    /// "q4 lowered 12, q5 raised 3" for the joints the limits changed (with their names).
+    pub fn clamps_by_joint(&self, joint_names: &[&str]) -> String {
+        let mut parts = Vec::new();
+        for (k, name) in joint_names.iter().enumerate() {
+            let lowered = self.lowered_rows_per_joint.get(k).copied().unwrap_or(0);
+            let raised = self.raised_rows_per_joint.get(k).copied().unwrap_or(0);
+            if lowered > 0 {
+                parts.push(format!("{name} lowered {lowered}"));
+            }
+            if raised > 0 {
+                parts.push(format!("{name} raised {raised}"));
+            }
+        }
+        parts.join(", ")
+    }
 }
 
 pub fn summarize(outs: &[StepOutput]) -> OfflineSummary {
@@ -132,7 +172,17 @@ pub fn summarize(outs: &[StepOutput]) -> OfflineSummary {
             None => reasons.push((name.to_string(), 1)),
         }
     }
+    let joints = outs.first().map_or(0, |o| o.joints);
+    let per_joint = |mask: fn(&StepOutput) -> u32| -> Vec<usize> {
+        (0..joints)
+            .map(|k| outs.iter().filter(|o| mask(o) & (1 << k) != 0).count())
+            .collect()
+    };
     OfflineSummary {
+        joint_limited_rows: outs.iter().filter(|o| o.joint_limited).count(),
+        lowered_rows_per_joint: per_joint(|o| o.joint_limit_lowered_mask),
+        raised_rows_per_joint: per_joint(|o| o.joint_limit_raised_mask),
+        rate_limited_rows: outs.iter().filter(|o| o.rate_limited).count(),
         steps: outs.len(),
         mean_loss_deg: if losses.is_empty() {
             f64::NAN

@@ -528,7 +528,7 @@ impl PipelineConfig {
             // unknown kind must list them.
             let declared: Option<ParamPorts> = match info {
                 Some(k) => Some(match k.ports_from_params {
-                    Some(f) => f(&n.params).map_err(|p| bad(field("params"), p))?,
+                    Some(f) => f(&n.params).map_err(|p| bad(field("params"), p.to_string()))?,
                     None => ParamPorts {
                         inputs: k.inputs.iter().map(|d| (d.service.to_string(), d.read)).collect(),
                         outputs: k.outputs.iter().map(|s| s.to_string()).collect(),

@@ -16,13 +16,18 @@ use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-/// One kind of fault.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// One kind of fault (`bowden bench faults --cases`: the kebab-case spellings).
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, strum::EnumString, strum::IntoStaticStr, strum::Display, strum::VariantNames,
+)]
+#[strum(serialize_all = "kebab-case")]
 pub enum FaultCase {
     Nan,
     OutOfRange,
     Silent,
+    #[strum(serialize = "hung")]
     HungDriver,
+    #[strum(serialize = "lost")]
     LostDriver,
 }
 
@@ -35,14 +40,9 @@ impl FaultCase {
         FaultCase::LostDriver,
     ];
 
-    pub fn name(self) -> &'static str {
-        match self {
-            FaultCase::Nan => "nan",
-            FaultCase::OutOfRange => "out-of-range",
-            FaultCase::Silent => "silent",
-            FaultCase::HungDriver => "hung",
-            FaultCase::LostDriver => "lost",
-        }
+    /// The spelling on the command line and in reports.
+    pub fn as_str(self) -> &'static str {
+        self.into()
     }
 
     pub fn describe(self) -> &'static str {
@@ -183,7 +183,7 @@ pub fn run(opts: &FaultBenchOptions, mut progress: impl FnMut(&str)) -> Result<V
     for &case in &opts.cases {
         let mut runs = Vec::new();
         for k in 0..opts.runs {
-            let prefix = format!("bf{}_{}{k}_", std::process::id(), case.name().replace('-', ""));
+            let prefix = format!("bf{}_{}{k}_", std::process::id(), case.as_str().replace('-', ""));
             let path = variant(case, &prefix, opts.fault_at_s, &opts.work_dir)?;
             let cfg =
                 PipelineConfig::load(&path, &Default::default(), opts.kinds).map_err(|e| FaultBenchError::Config {
@@ -221,7 +221,7 @@ pub fn run(opts: &FaultBenchOptions, mut progress: impl FnMut(&str)) -> Result<V
             let m = measure(case, &report, t_inj);
             progress(&format!(
                 "{} run {}: detection {} ms, exit code {}",
-                case.name(),
+                case.as_str(),
                 k + 1,
                 m.detection_ms.map_or("-".into(), |d| format!("{d:.2}")),
                 m.exit_code
@@ -229,7 +229,7 @@ pub fn run(opts: &FaultBenchOptions, mut progress: impl FnMut(&str)) -> Result<V
             runs.push(m);
         }
         rows.push(FaultRow {
-            case: case.name(),
+            case: case.as_str(),
             what: case.describe(),
             runs,
         });

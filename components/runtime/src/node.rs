@@ -92,7 +92,60 @@ pub struct ParamPorts {
 }
 
 /// Reads a kind's ports from its `[node.params]`; the error says what is wrong with them.
-pub type PortsFromParams = fn(&toml::Table) -> Result<ParamPorts, String>;
+pub type PortsFromParams = fn(&toml::Table) -> Result<ParamPorts, ParamPortsError>;
+
+/// What is wrong with the service lists of a node's `[node.params]` (a bridge's `export` and
+/// `import`, a recorder's `services`).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ParamPortsError {
+    #[error("{what}")]
+    Missing { what: &'static str },
+    #[error("`{key}` must be an array of service names")]
+    NotAnArray { key: &'static str },
+    #[error("`{key}` must be an array of strings")]
+    NotStrings { key: &'static str },
+    #[error("`{key}`: unknown service `{service}` (known: {})", crate::ports::known_services().join(", "))]
+    UnknownService { key: &'static str, service: String },
+    #[error("`{key}`: service `{service}` listed twice")]
+    Twice { key: &'static str, service: String },
+    #[error("`{key}`: `{service}` {why}")]
+    Refused {
+        key: &'static str,
+        service: String,
+        why: &'static str,
+    },
+    #[error("service `{service}` is both exported and imported")]
+    BothWays { service: String },
+}
+
+/// The service names of list `key` in `params` (empty when absent): known services, each once,
+/// none that `refuse` gives a reason against.
+pub fn service_list(
+    params: &toml::Table,
+    key: &'static str,
+    refuse: impl Fn(&str) -> Option<&'static str>,
+) -> Result<Vec<String>, ParamPortsError> {
+    let Some(v) = params.get(key) else {
+        return Ok(Vec::new());
+    };
+    let arr = v.as_array().ok_or(ParamPortsError::NotAnArray { key })?;
+    let mut out: Vec<String> = Vec::new();
+    for s in arr {
+        let s = s.as_str().ok_or(ParamPortsError::NotStrings { key })?;
+        let service = s.to_string();
+        if !crate::ports::is_service(s) {
+            return Err(ParamPortsError::UnknownService { key, service });
+        }
+        if let Some(why) = refuse(s) {
+            return Err(ParamPortsError::Refused { key, service, why });
+        }
+        if out.contains(&service) {
+            return Err(ParamPortsError::Twice { key, service });
+        }
+        out.push(service);
+    }
+    Ok(out)
+}
 
 /// Builds a node of one kind from its `[[node]]` (parameters, pipeline, ports).
 pub type BuildFn = fn(&StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError>;

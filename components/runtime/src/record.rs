@@ -19,8 +19,8 @@
 //! service, so FIFO order is the producer's order): the bytes depend only on the run's inputs.
 //! A log without a valid index (the recorder was killed) is still readable: the reader scans it.
 
-use crate::node::{NodeKind, ParamPorts, Read as ReadPolicy, Schedule};
-use crate::ports::{is_service, visit_payload, FrameInput, Input, Message, PayloadVisitor};
+use crate::node::{service_list, NodeKind, ParamPorts, ParamPortsError, Read as ReadPolicy, Schedule};
+use crate::ports::{visit_payload, FrameInput, Input, Message, PayloadVisitor};
 use crate::stage::{Stage, StageBuildError, StageCounters, StageEnv, StageError, StepCx, StepReport};
 use bowden_interfaces::{services, RgbdFrameHeader};
 use std::fs::File;
@@ -656,7 +656,7 @@ pub const KIND: NodeKind = NodeKind {
 };
 
 /// The services a recorder's `params.services` names (validated), as its inputs.
-fn recorder_ports(params: &toml::Table) -> Result<ParamPorts, String> {
+fn recorder_ports(params: &toml::Table) -> Result<ParamPorts, ParamPortsError> {
     Ok(ParamPorts {
         inputs: recorder_services(params)?
             .into_iter()
@@ -666,24 +666,17 @@ fn recorder_ports(params: &toml::Table) -> Result<ParamPorts, String> {
     })
 }
 
-fn recorder_services(params: &toml::Table) -> Result<Vec<String>, String> {
-    let Some(v) = params.get("services") else {
-        return Err("a recorder needs `services = [...]`".into());
-    };
-    let arr = v.as_array().ok_or("must be an array of service names")?;
-    let mut out = Vec::new();
-    for s in arr {
-        let s = s.as_str().ok_or("must be an array of strings")?;
-        if !is_service(s) {
-            return Err(format!("unknown service `{s}`"));
-        }
-        if out.iter().any(|o: &String| o == s) {
-            return Err(format!("service `{s}` listed twice"));
-        }
-        out.push(s.to_string());
+fn recorder_services(params: &toml::Table) -> Result<Vec<String>, ParamPortsError> {
+    if !params.contains_key("services") {
+        return Err(ParamPortsError::Missing {
+            what: "a recorder needs `services = [...]`",
+        });
     }
+    let out = service_list(params, "services", |_| None)?;
     if out.is_empty() {
-        return Err("no services to record".into());
+        return Err(ParamPortsError::Missing {
+            what: "no services to record",
+        });
     }
     Ok(out)
 }
@@ -702,7 +695,7 @@ pub struct RecorderStage {
 impl RecorderStage {
     pub fn from_env(env: &StageEnv<'_>) -> Result<Self, StageBuildError> {
         let p: RecorderParams = env.params()?;
-        let services = recorder_services(&env.spec.params).map_err(|m| env.error(m))?;
+        let services = recorder_services(&env.spec.params).map_err(|e| env.error(e))?;
         // A relative path is relative to the working directory of the run (where the user asked
         // for the recording), not to the config file.
         let path = p.path.clone();

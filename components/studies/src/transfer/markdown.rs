@@ -66,6 +66,16 @@ pub(super) fn reduction_table(out: &mut String, units: &[&UnitOutcome]) {
 
 pub(super) fn markdown(rep: &Report) -> String {
     let mut out = String::new();
+    header(&mut out, rep);
+    recipe(&mut out, rep);
+    families(&mut out, rep);
+    held_out(&mut out, rep);
+    failures_timing_tuning(&mut out, rep);
+    out
+}
+
+/// The title and what this run was.
+fn header(out: &mut String, rep: &Report) {
     let r = &rep.recipe;
     let _ = writeln!(out, "# Transfer to unseen units\n");
     let _ = writeln!(
@@ -112,6 +122,11 @@ pub(super) fn markdown(rep: &Report) -> String {
         shown(&rep.project_dir, &rep.config),
         shown(&rep.project_dir, &rep.out)
     );
+}
+
+/// The recipe, step by step, with the files each step reads.
+fn recipe(out: &mut String, rep: &Report) {
+    let r = &rep.recipe;
     let _ = writeln!(out, "## Recipe\n");
     let _ = writeln!(
         out,
@@ -215,6 +230,10 @@ pub(super) fn markdown(rep: &Report) -> String {
             })
             .collect::<String>(),
     );
+}
+
+/// The families: plant file, model, tuning and held-out units.
+fn families(out: &mut String, rep: &Report) {
     let _ = writeln!(out, "## Families\n");
     let _ = writeln!(
         out,
@@ -239,8 +258,11 @@ pub(super) fn markdown(rep: &Report) -> String {
         );
     }
     out.push('\n');
+}
+
+/// The held-out results: the reductions, per family, never-worse checks and goals.
+fn held_out(out: &mut String, rep: &Report) {
     let held: Vec<&UnitOutcome> = rep.units.iter().filter(|u| u.role == Role::HeldOut).collect();
-    let tuning: Vec<&UnitOutcome> = rep.units.iter().filter(|u| u.role == Role::Tuning).collect();
     let _ = writeln!(
         out,
         "## Held-out units: error reduction vs uncalibrated, % (+ = better)\n\n\
@@ -251,7 +273,7 @@ pub(super) fn markdown(rep: &Report) -> String {
     if held.is_empty() {
         let _ = writeln!(out, "No held-out unit ran (`--units heldout` or `all` runs them).\n");
     } else {
-        reduction_table(&mut out, &held);
+        reduction_table(out, &held);
     }
     let _ = writeln!(
         out,
@@ -355,6 +377,11 @@ pub(super) fn markdown(rep: &Report) -> String {
         }
         out.push('\n');
     }
+}
+
+/// Failed units, the time per step, and the tuning units' figures (not results).
+fn failures_timing_tuning(out: &mut String, rep: &Report) {
+    let tuning: Vec<&UnitOutcome> = rep.units.iter().filter(|u| u.role == Role::Tuning).collect();
     let failed: Vec<&UnitOutcome> = rep.units.iter().filter(|u| u.failure.is_some()).collect();
     if !failed.is_empty() {
         let _ = writeln!(out, "## Failures\n");
@@ -449,7 +476,6 @@ pub(super) fn markdown(rep: &Report) -> String {
             out,
             "## Tuning units (for choosing the recipe only; not results)\n\nReduction vs uncalibrated, %.\n"
         );
-        reduction_table(&mut out, &tuning);
+        reduction_table(out, &tuning);
     }
-    out
 }

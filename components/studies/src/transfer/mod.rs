@@ -123,6 +123,160 @@ pub fn transfer(a: TransferOptions) -> Result<()> {
     let load_average = std::fs::read_to_string("/proc/loadavg")
         .ok()
         .and_then(|s| s.split_whitespace().next()?.parse::<f64>().ok());
+    let Setup {
+        cfg,
+        config_file,
+        project,
+        recipe,
+        base_controller,
+        feedback_config,
+        trajectory_sets,
+        families,
+    } = setup(&a)?;
+    let out = absolute(&a.out);
+    let plans = plan_units(&a, &families, &out)?;
+    // What each unit's outcome depends on: checked by --merge, shown by --plan.
+    let recipe_files = format!(
+        "{}\u{1e}{}",
+        read_text(&base_controller),
+        feedback_config.as_deref().map(read_text).unwrap_or_default()
+    );
+    let fingerprints: Vec<String> = plans
+        .iter()
+        .map(|p| unit_fingerprint(&recipe, &recipe_files, cfg.seed, &families[p.family], p))
+        .collect::<Result<_>>()?;
+    if a.plan {
+        return print_unit_plan(&a, &plans, &families, &fingerprints);
+    }
+    let selection = a
+        .shard
+        .as_deref()
+        .map(|s| s.parse::<Selection>().map_err(anyhow::Error::msg))
+        .transpose()?;
+    let selected: Vec<usize> = match selection {
+        Some(s) => s.indices(plans.len())?,
+        None => (0..plans.len()).collect(),
+    };
+    if let (Some(s), true) = (selection, selected.is_empty()) {
+        // A job array larger than the plan: this slot has nothing to do.
+        println!("bench transfer {s}: no units (the plan has {})", plans.len());
+        return Ok(());
+    }
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let jobs = a.jobs.min(selected.len());
+    let threads = recipe.threads.unwrap_or((cores / jobs).max(1));
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    let units: Vec<UnitOutcome> = if a.merge {
+        load_outcomes(&plans, &fingerprints, &recipe)?
+    } else {
+        let ctx = Ctx {
+            exe: a.exe.clone(),
+            project: project.clone(),
+            recipe: recipe.clone(),
+            seed: cfg.seed,
+            threads,
+            base_controller,
+            feedback_config,
+            trajectory_sets: trajectory_sets.clone(),
+            config_file: config_file.clone(),
+            mp: MultiProgress::new(),
+        };
+        let sel = Selected {
+            plans: &plans,
+            indices: &selected,
+            fingerprints: &fingerprints,
+            shard: selection,
+        };
+        match run_selected(&a, &ctx, &families, &sel, jobs)? {
+            Some(units) => units,
+            // A shard: its units' outcome files are written, the report is --merge's.
+            None => return Ok(()),
+        }
+    };
+    let held: Vec<&UnitOutcome> = units.iter().filter(|u| u.role == Role::HeldOut).collect();
+    let summary = summarise(&held, &families, &recipe);
+    let mut rep = Report {
+        config: config_file,
+        out: out.clone(),
+        project_dir: project,
+        quick: a.quick,
+        units_selected: a.units,
+        jobs,
+        train_threads: threads,
+        cores,
+        load_average,
+        seed: cfg.seed,
+        recipe: recipe.clone(),
+        families,
+        best_mode: best_mode(&held, &recipe, false),
+        best_feed_forward: best_mode(&held, &recipe, true),
+        goals: goals(&held, &recipe),
+        summary,
+        never_worse: never_worse(&held, &recipe),
+        timing: timing(&units),
+        units: Vec::new(),
+        merged: a.merge,
+        wall_seconds: 0.0,
+    };
+    let (plotted, which): (Vec<&UnitOutcome>, &str) = if held.iter().any(|u| !u.rows.is_empty()) {
+        (held.clone(), "held-out")
+    } else {
+        let t: Vec<&UnitOutcome> = units.iter().filter(|u| u.role == Role::Tuning).collect();
+        if rep.best_mode.is_none() {
+            rep.best_mode = best_mode(&t, &recipe, false);
+        }
+        (t, "tuning (no held-out results)")
+    };
+    let svg = out.join("transfer.svg");
+    plot(&svg, &rep, &plotted, which)?;
+    let n_failed = units.iter().filter(|u| u.failure.is_some()).count();
+    let failed_names: Vec<String> = units
+        .iter()
+        .filter_map(|u| {
+            u.failure
+                .as_ref()
+                .map(|f| format!("{}/unit-{} at {}", u.family, u.unit, f.step))
+        })
+        .collect();
+    rep.wall_seconds = if a.merge {
+        units.iter().map(|u| u.wall_seconds).sum()
+    } else {
+        t_start.elapsed().as_secs_f64()
+    };
+    rep.units = units;
+    let md = markdown(&rep);
+    write_atomic(&out.join("transfer.md"), &md)?;
+    write_atomic(&out.join("transfer.json"), &serde_json::to_string_pretty(&rep)?)?;
+    println!("{md}");
+    eprintln!(
+        "wrote {0}/transfer.md, {0}/transfer.json, {0}/transfer.svg",
+        out.display()
+    );
+    if n_failed > 0 {
+        bail!(
+            "{n_failed} of {} unit(s) failed ({}); the report lists them",
+            rep.units.len(),
+            failed_names.join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// What a run works with, found and checked before any unit is planned.
+struct Setup {
+    cfg: TransferConfig,
+    config_file: PathBuf,
+    /// The directory the user's commands run in (their default `configs/...` paths).
+    project: PathBuf,
+    recipe: Recipe,
+    base_controller: PathBuf,
+    feedback_config: Option<PathBuf>,
+    trajectory_sets: Vec<(String, PathBuf)>,
+    families: Vec<Family>,
+}
+
+/// Reads and checks the config, the recipe's files and the families (`--families` included).
+fn setup(a: &TransferOptions) -> Result<Setup> {
     // The config by bowden's resolution order (docs/architecture.md §1): the shipped one is found
     // outside a checkout too, and then the built-in copy is the project the steps run in.
     let config_file = absolute(&a.config_file);
@@ -220,8 +374,22 @@ pub fn transfer(a: TransferOptions) -> Result<()> {
             );
         }
     }
+    Ok(Setup {
+        cfg,
+        config_file,
+        project,
+        recipe,
+        base_controller,
+        feedback_config,
+        trajectory_sets,
+        families,
+    })
+}
+
+/// The selected units (`--units`, `--families`, `--max-units`), taken in turn from each family
+/// so `--max-units` covers the families; every one's plant file must exist.
+fn plan_units(a: &TransferOptions, families: &[Family], out: &Path) -> Result<Vec<UnitPlan>> {
     // Units, taken in turn from each family (so --max-units covers the families).
-    let out = absolute(&a.out);
     let mut queues: Vec<Vec<UnitPlan>> = Vec::new();
     for (fi, f) in families.iter().enumerate() {
         if !a.families.is_empty() && !a.families.contains(&f.name) {
@@ -278,245 +446,152 @@ pub fn transfer(a: TransferOptions) -> Result<()> {
             );
         }
     }
-    // What each unit's outcome depends on: checked by --merge, shown by --plan.
-    let recipe_files = format!(
-        "{}\u{1e}{}",
-        read_text(&base_controller),
-        feedback_config.as_deref().map(read_text).unwrap_or_default()
-    );
-    let fingerprints: Vec<String> = plans
-        .iter()
-        .map(|p| unit_fingerprint(&recipe, &recipe_files, cfg.seed, &families[p.family], p))
-        .collect::<Result<_>>()?;
-    if a.plan {
-        return print_unit_plan(&a, &plans, &families, &fingerprints);
-    }
-    let selection = a
-        .shard
-        .as_deref()
-        .map(|s| s.parse::<Selection>().map_err(anyhow::Error::msg))
-        .transpose()?;
-    let selected: Vec<usize> = match selection {
-        Some(s) => s.indices(plans.len())?,
-        None => (0..plans.len()).collect(),
-    };
-    if let (Some(s), true) = (selection, selected.is_empty()) {
-        // A job array larger than the plan: this slot has nothing to do.
-        println!("bench transfer {s}: no units (the plan has {})", plans.len());
-        return Ok(());
-    }
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let jobs = a.jobs.min(selected.len());
-    let threads = recipe.threads.unwrap_or((cores / jobs).max(1));
-    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-    let units: Vec<UnitOutcome> = if a.merge {
-        load_outcomes(&plans, &fingerprints, &recipe)?
-    } else {
-        let exe = a.exe.clone();
-        if recipe.tune {
-            let o = std::process::Command::new(&exe)
-                .args(["tune", "--help"])
-                .stdin(Stdio::null())
-                .output()
-                .context("running bowden tune --help")?;
-            if !o.status.success() {
-                let err = String::from_utf8_lossy(&o.stderr);
-                if err.contains("unrecognized subcommand") {
-                    bail!(
-                        "{}: recipe.tune = true but this bowden has no `tune` subcommand: set `recipe.tune = false`",
-                        a.config.display()
-                    );
-                }
-                bail!("bowden tune --help failed ({}): {}", o.status, err.trim());
-            }
-        }
-        let ctx = Ctx {
-            exe,
-            project: project.clone(),
-            recipe: recipe.clone(),
-            seed: cfg.seed,
-            threads,
-            base_controller,
-            feedback_config,
-            trajectory_sets: trajectory_sets.clone(),
-            config_file: config_file.clone(),
-            mp: MultiProgress::new(),
-        };
-        eprintln!(
-            "bench transfer: {} unit(s), {} at once, into {}",
-            selected.len(),
-            jobs,
-            out.display()
-        );
-        let overall = ctx.mp.add(ProgressBar::new(selected.len() as u64));
-        overall.set_style(
-            ProgressStyle::with_template("units [{bar:30}] {pos}/{len}  {elapsed_precise}")
-                .unwrap_or_else(|_| ProgressStyle::default_bar())
-                .progress_chars("=> "),
-        );
-        let next = AtomicUsize::new(0);
-        let outcomes: Mutex<Vec<Option<UnitOutcome>>> = Mutex::new(vec![None; selected.len()]);
-        std::thread::scope(|s| {
-            for _ in 0..jobs {
-                s.spawn(|| loop {
-                    let i = next.fetch_add(1, Ordering::SeqCst);
-                    let Some(plan) = selected.get(i).map(|&k| &plans[k]) else {
-                        break;
-                    };
-                    let label = format!("{}/unit-{}", families[plan.family].name, plan.unit);
-                    let bar = ctx.mp.insert_before(&overall, ProgressBar::new_spinner());
-                    bar.set_style(
-                        ProgressStyle::with_template("{spinner} {prefix:32} {msg:28} {elapsed}")
-                            .unwrap_or_else(|_| ProgressStyle::default_spinner()),
-                    );
-                    bar.set_prefix(label.clone());
-                    bar.enable_steady_tick(Duration::from_millis(250));
-                    let o = run_unit(&ctx, &families, plan, &bar);
-                    bar.finish_and_clear();
-                    ctx.mp.remove(&bar);
-                    ctx.mp.suspend(|| match &o.failure {
-                        None => eprintln!("{label}: done in {:.0} s", o.wall_seconds),
-                        Some(f) => eprintln!(
-                            "{label}: FAILED at step {} ({}){}{}{}",
-                            f.step,
-                            f.status,
-                            f.hint.as_ref().map(|h| format!(": {h}")).unwrap_or_default(),
-                            f.log
-                                .as_ref()
-                                .map(|l| format!("; log {}", l.display()))
-                                .unwrap_or_default(),
-                            if f.log_tail.is_empty() {
-                                String::new()
-                            } else {
-                                format!("\n    {}", f.log_tail.join("\n    "))
-                            }
-                        ),
-                    });
-                    if let Ok(mut v) = outcomes.lock() {
-                        v[i] = Some(o);
-                    }
-                    overall.inc(1);
-                });
-            }
-        });
-        overall.finish_and_clear();
-        let units: Vec<UnitOutcome> = outcomes
-            .into_inner()
-            .map_err(|_| anyhow!("a unit's thread panicked"))?
-            .into_iter()
-            .flatten()
-            .collect();
-        if units.len() != selected.len() {
-            bail!(
-                "{} of {} units did not report (a thread panicked)",
-                selected.len() - units.len(),
-                selected.len()
-            );
-        }
-        // Every unit's outcome beside its stamps, for --merge (a shard's units, or a local run's).
-        for (&k, u) in selected.iter().zip(&units) {
-            let file = OutcomeFile {
-                format: OUTCOME_FORMAT.into(),
-                fingerprint: fingerprints[k].clone(),
-                outcome: u.clone(),
-            };
-            std::fs::create_dir_all(&plans[k].dir).with_context(|| format!("creating {}", plans[k].dir.display()))?;
-            write_atomic(&outcome_path(&plans[k]), &serde_json::to_string_pretty(&file)?)?;
-        }
-        if let Some(s) = selection {
-            for (&k, u) in selected.iter().zip(&units) {
-                println!(
-                    "unit {k} {}/unit-{}: {}; {}",
-                    u.family,
-                    u.unit,
-                    match &u.failure {
-                        None => "ok".to_string(),
-                        Some(f) => format!("FAILED at step {}", f.step),
-                    },
-                    outcome_path(&plans[k]).display()
-                );
-            }
-            let failed = units.iter().filter(|u| u.failure.is_some()).count();
-            if failed > 0 {
+    Ok(plans)
+}
+
+/// The units one run makes (all selected, or a shard's).
+struct Selected<'a> {
+    plans: &'a [UnitPlan],
+    /// Indices into `plans` of the units to run.
+    indices: &'a [usize],
+    fingerprints: &'a [String],
+    shard: Option<Selection>,
+}
+
+/// Runs the selected units, `jobs` at once, and leaves each one's outcome file beside its
+/// stamps. A shard prints what it did and returns `None`: the report is `--merge`'s.
+fn run_selected(
+    a: &TransferOptions,
+    ctx: &Ctx,
+    families: &[Family],
+    sel: &Selected<'_>,
+    jobs: usize,
+) -> Result<Option<Vec<UnitOutcome>>> {
+    if ctx.recipe.tune {
+        let o = std::process::Command::new(&ctx.exe)
+            .args(["tune", "--help"])
+            .stdin(Stdio::null())
+            .output()
+            .context("running bowden tune --help")?;
+        if !o.status.success() {
+            let err = String::from_utf8_lossy(&o.stderr);
+            if err.contains("unrecognized subcommand") {
                 bail!(
-                    "bench transfer {s}: {failed} of {} unit(s) failed; their outcome files record it",
-                    units.len()
+                    "{}: recipe.tune = true but this bowden has no `tune` subcommand: set `recipe.tune = false`",
+                    a.config.display()
                 );
             }
-            println!(
-                "bench transfer {s}: {} of {} units done; when every shard has finished: bench transfer ... --merge",
-                units.len(),
-                plans.len()
-            );
-            return Ok(());
+            bail!("bowden tune --help failed ({}): {}", o.status, err.trim());
         }
-        units
-    };
-    let held: Vec<&UnitOutcome> = units.iter().filter(|u| u.role == Role::HeldOut).collect();
-    let summary = summarise(&held, &families, &recipe);
-    let mut rep = Report {
-        config: config_file,
-        out: out.clone(),
-        project_dir: project,
-        quick: a.quick,
-        units_selected: a.units,
-        jobs,
-        train_threads: threads,
-        cores,
-        load_average,
-        seed: cfg.seed,
-        recipe: recipe.clone(),
-        families,
-        best_mode: best_mode(&held, &recipe, false),
-        best_feed_forward: best_mode(&held, &recipe, true),
-        goals: goals(&held, &recipe),
-        summary,
-        never_worse: never_worse(&held, &recipe),
-        timing: timing(&units),
-        units: Vec::new(),
-        merged: a.merge,
-        wall_seconds: 0.0,
-    };
-    let (plotted, which): (Vec<&UnitOutcome>, &str) = if held.iter().any(|u| !u.rows.is_empty()) {
-        (held.clone(), "held-out")
-    } else {
-        let t: Vec<&UnitOutcome> = units.iter().filter(|u| u.role == Role::Tuning).collect();
-        if rep.best_mode.is_none() {
-            rep.best_mode = best_mode(&t, &recipe, false);
-        }
-        (t, "tuning (no held-out results)")
-    };
-    let svg = out.join("transfer.svg");
-    plot(&svg, &rep, &plotted, which)?;
-    let n_failed = units.iter().filter(|u| u.failure.is_some()).count();
-    let failed_names: Vec<String> = units
-        .iter()
-        .filter_map(|u| {
-            u.failure
-                .as_ref()
-                .map(|f| format!("{}/unit-{} at {}", u.family, u.unit, f.step))
-        })
-        .collect();
-    rep.wall_seconds = if a.merge {
-        units.iter().map(|u| u.wall_seconds).sum()
-    } else {
-        t_start.elapsed().as_secs_f64()
-    };
-    rep.units = units;
-    let md = markdown(&rep);
-    write_atomic(&out.join("transfer.md"), &md)?;
-    write_atomic(&out.join("transfer.json"), &serde_json::to_string_pretty(&rep)?)?;
-    println!("{md}");
+    }
     eprintln!(
-        "wrote {0}/transfer.md, {0}/transfer.json, {0}/transfer.svg",
-        out.display()
+        "bench transfer: {} unit(s), {} at once, into {}",
+        sel.indices.len(),
+        jobs,
+        absolute(&a.out).display()
     );
-    if n_failed > 0 {
+    let overall = ctx.mp.add(ProgressBar::new(sel.indices.len() as u64));
+    overall.set_style(
+        ProgressStyle::with_template("units [{bar:30}] {pos}/{len}  {elapsed_precise}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    let next = AtomicUsize::new(0);
+    let outcomes: Mutex<Vec<Option<UnitOutcome>>> = Mutex::new(vec![None; sel.indices.len()]);
+    std::thread::scope(|s| {
+        for _ in 0..jobs {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, Ordering::SeqCst);
+                let Some(plan) = sel.indices.get(i).map(|&k| &sel.plans[k]) else {
+                    break;
+                };
+                let label = format!("{}/unit-{}", families[plan.family].name, plan.unit);
+                let bar = ctx.mp.insert_before(&overall, ProgressBar::new_spinner());
+                bar.set_style(
+                    ProgressStyle::with_template("{spinner} {prefix:32} {msg:28} {elapsed}")
+                        .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+                );
+                bar.set_prefix(label.clone());
+                bar.enable_steady_tick(Duration::from_millis(250));
+                let o = run_unit(ctx, families, plan, &bar);
+                bar.finish_and_clear();
+                ctx.mp.remove(&bar);
+                ctx.mp.suspend(|| match &o.failure {
+                    None => eprintln!("{label}: done in {:.0} s", o.wall_seconds),
+                    Some(f) => eprintln!(
+                        "{label}: FAILED at step {} ({}){}{}{}",
+                        f.step,
+                        f.status,
+                        f.hint.as_ref().map(|h| format!(": {h}")).unwrap_or_default(),
+                        f.log
+                            .as_ref()
+                            .map(|l| format!("; log {}", l.display()))
+                            .unwrap_or_default(),
+                        if f.log_tail.is_empty() {
+                            String::new()
+                        } else {
+                            format!("\n    {}", f.log_tail.join("\n    "))
+                        }
+                    ),
+                });
+                if let Ok(mut v) = outcomes.lock() {
+                    v[i] = Some(o);
+                }
+                overall.inc(1);
+            });
+        }
+    });
+    overall.finish_and_clear();
+    let units: Vec<UnitOutcome> = outcomes
+        .into_inner()
+        .map_err(|_| anyhow!("a unit's thread panicked"))?
+        .into_iter()
+        .flatten()
+        .collect();
+    if units.len() != sel.indices.len() {
         bail!(
-            "{n_failed} of {} unit(s) failed ({}); the report lists them",
-            rep.units.len(),
-            failed_names.join(", ")
+            "{} of {} units did not report (a thread panicked)",
+            sel.indices.len() - units.len(),
+            sel.indices.len()
         );
     }
-    Ok(())
+    // Every unit's outcome beside its stamps, for --merge (a shard's units, or a local run's).
+    for (&k, u) in sel.indices.iter().zip(&units) {
+        let file = OutcomeFile {
+            format: OUTCOME_FORMAT.into(),
+            fingerprint: sel.fingerprints[k].clone(),
+            outcome: u.clone(),
+        };
+        std::fs::create_dir_all(&sel.plans[k].dir)
+            .with_context(|| format!("creating {}", sel.plans[k].dir.display()))?;
+        write_atomic(&outcome_path(&sel.plans[k]), &serde_json::to_string_pretty(&file)?)?;
+    }
+    if let Some(s) = sel.shard {
+        for (&k, u) in sel.indices.iter().zip(&units) {
+            println!(
+                "unit {k} {}/unit-{}: {}; {}",
+                u.family,
+                u.unit,
+                match &u.failure {
+                    None => "ok".to_string(),
+                    Some(f) => format!("FAILED at step {}", f.step),
+                },
+                outcome_path(&sel.plans[k]).display()
+            );
+        }
+        let failed = units.iter().filter(|u| u.failure.is_some()).count();
+        if failed > 0 {
+            bail!(
+                "bench transfer {s}: {failed} of {} unit(s) failed; their outcome files record it",
+                units.len()
+            );
+        }
+        println!(
+            "bench transfer {s}: {} of {} units done; when every shard has finished: bench transfer ... --merge",
+            units.len(),
+            sel.plans.len()
+        );
+        return Ok(None);
+    }
+    Ok(Some(units))
 }
