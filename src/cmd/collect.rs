@@ -77,6 +77,7 @@ pub fn run(c: Command) -> Result<()> {
     }
 }
 
+// Long: argument checks and the collection's set-up in the order the user sees them; the hold-and-measure loop is `bowden_evaluation::hold`.
 fn collect(mut a: CollectArgs) -> Result<()> {
     super::dataset_out(&a.out, a.force)?;
     // Found once, here: every later use (and the manifest) names the same files.

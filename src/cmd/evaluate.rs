@@ -219,6 +219,7 @@ struct Prepared {
     settle_ticks: u32,
 }
 
+// Long: the evaluation's set-up in the order its options interact (repeats, tick, camera rate, controller copies, pipeline variants).
 fn prepare(a: &Files, default_repeats: u32, default_report: &str, report_files: [&str; 2]) -> Result<Prepared> {
     let repeats = a.repeats.unwrap_or(default_repeats);
     if repeats == 0 || a.settle_ticks == 0 {
@@ -469,50 +470,18 @@ fn print_files(files: &[PathBuf]) {
 
 /// The plant file's `[drift]` as the session reports it: onset, marks for the plots, one line.
 fn slack_events(cfg: &bowden_plant::PlantConfig, robot: &Robot) -> SlackEvents {
-    let d = &cfg.drift;
-    let name = |i: usize| {
+    let (marks, description) = cfg.drift.describe(|i| {
         robot
             .config
             .cables
             .get(i)
             .map(|c| c.name.clone())
             .unwrap_or_else(|| format!("w{}", i + 1))
-    };
-    let mut marks = Vec::new();
-    let mut parts = Vec::new();
-    let creeping: Vec<usize> = (0..d.rate_mm_per_hour.len())
-        .filter(|&i| d.rate_mm_per_hour[i] > 0.0 && d.max_mm > 0.0)
-        .collect();
-    if !creeping.is_empty() {
-        let rates: Vec<String> = creeping
-            .iter()
-            .map(|&i| format!("{} {} mm/h", name(i), d.rate_mm_per_hour[i]))
-            .collect();
-        let fastest = creeping.iter().map(|&i| d.rate_mm_per_hour[i]).fold(0.0, f64::max);
-        let full_s = d.start_s + 3600.0 * d.max_mm / fastest;
-        parts.push(format!(
-            "creep {} from {:.0} s, up to {} mm (reached at {:.0} s)",
-            rates.join(", "),
-            d.start_s,
-            d.max_mm,
-            full_s
-        ));
-        marks.push((format!("creep starts ({:.0} s)", d.start_s), d.start_s));
-        marks.push((format!("creep reaches {} mm ({full_s:.0} s)", d.max_mm), full_s));
-    }
-    for sl in &d.slip {
-        let what = format!("{} slips {} mm at {:.0} s", name(sl.cable - 1), sl.mm, sl.at_s);
-        marks.push((what.clone(), sl.at_s));
-        parts.push(what);
-    }
+    });
     SlackEvents {
-        onset_s: d.onset_s(),
+        onset_s: cfg.drift.onset_s(),
         marks,
-        description: if parts.is_empty() {
-            "no creep, no slip".into()
-        } else {
-            parts.join("; ")
-        },
+        description,
     }
 }
 

@@ -9,8 +9,8 @@ use std::path::PathBuf;
 #[derive(Subcommand)]
 pub enum BenchCommand {
     /// Seconds per training epoch: 24,565 windows of L = 80, batch 32, J = 5 (synthetic
-    /// data), against PyTorch's epoch timed in the same run (--pytorch PYTHON) or else the
-    /// issue's figures from another machine (2 threads: 3.65 s TCN, 6.4 s LSTM).
+    /// data), against PyTorch's epoch timed in the same run (--pytorch PYTHON) or else a
+    /// reference figure from another machine, marked as such (docs/results/train-speed).
     Train(BenchTrainArgs),
 }
 

@@ -223,6 +223,7 @@ struct PlayResult {
     step_errors: u64,
 }
 
+// Long: argument checks, set-up and the paced playback loop of one command; the plant itself is a library call per step.
 fn run_play(a: PlayArgs) -> Result<()> {
     let robot = match &a.robot {
         Some(p) => Robot::load(crate::home::path(p)?).context("loading the robot file (--robot)")?,
@@ -271,7 +272,8 @@ fn run_play(a: PlayArgs) -> Result<()> {
         super::refuse_overwrite(std::slice::from_ref(p), a.force, "--out")?;
     }
 
-    let mut plant = Plant::new(&robot, &config, unit);
+    let mut plant =
+        Plant::try_new(&robot, &config, unit).with_context(|| format!("building unit {unit} of the plant"))?;
     // Simulation sub-step: the row period, at most 1 ms (the families sub-step further inside).
     let period_s = a.period_ns as f64 * 1e-9;
     let dt_s = period_s.min(1e-3);

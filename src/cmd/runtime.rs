@@ -169,6 +169,7 @@ pub(super) fn load(arg: &str, ov: &Overrides) -> anyhow::Result<PipelineConfig> 
     PipelineConfig::load_arg(&arg, ov, bowden::registry::REGISTRY).context("pipeline config")
 }
 
+// Long: the dispatch of the pipeline commands (node, run, replay, estop, clean), each a few lines of argument mapping.
 pub fn run(c: Command) -> anyhow::Result<()> {
     match c {
         Command::Node {

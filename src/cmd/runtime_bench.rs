@@ -333,6 +333,7 @@ fn faults(a: FaultsArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+// Long: the cycle benchmark's load and scheduling combinations and their table, one measured run each.
 fn cycle(a: CycleArgs) -> anyhow::Result<()> {
     let CycleArgs {
         seconds,

@@ -160,6 +160,11 @@ fn run_tune(mut a: TuneArgs) -> Result<()> {
         r.step_deg,
         json.display()
     );
+    // By how much the choice won: a hair's breadth on the validation stretch says little about
+    // other paths (issue #43).
+    if let Some(line) = r.margin_line() {
+        println!("{line}");
+    }
     // The chosen models by `train`'s (and `bowden score`'s) definition of validation RMSE, so
     // the figure a user compares is the same everywhere: tune's own replay scores above use its
     // split, which need not be the one a model was trained with.

@@ -15,12 +15,18 @@ use std::time::Duration;
 const FAULT_TICK: u64 = 200;
 
 fn start(cfg_text: &str, dir: &std::path::Path) -> LockstepSession {
+    // A shared machine can pause a tick for seconds: no stall halts these runs by accident.
+    start_with_stall(cfg_text, dir, Some(Duration::from_secs(20)))
+}
+
+/// [`start`] with the session's stall bound: `None` keeps the config's `stall_timeout_ms`.
+fn start_with_stall(cfg_text: &str, dir: &std::path::Path, stall: Option<Duration>) -> LockstepSession {
     let path = write_config(dir, "chain.toml", cfg_text);
     let cfg = PipelineConfig::load(&path, &Overrides::default(), REGISTRY).unwrap();
     let mut opts = SessionOptions::new(LaunchOptions::with_exe(bowden_exe()));
     opts.launch.quiet_children = true;
     opts.taps = vec![services::MOTOR_COMMAND.into(), services::PLANT_STATE.into()];
-    opts.stall_timeout = Some(Duration::from_secs(20));
+    opts.stall_timeout = stall;
     LockstepSession::start(&cfg, opts).unwrap()
 }
 
@@ -338,7 +344,8 @@ fn a_hung_process_halts_a_lockstep_run_within_the_stall_bound() {
     let dir = tempfile::tempdir().unwrap();
     let (p, _guard) = guarded_prefix("fs9");
     let text = control_chain(&p, "never").replace("seed = 3\n", "seed = 3\nstall_timeout_ms = 300\n");
-    let mut s = start(&text, dir.path());
+    // The config's bound, not the other tests' 20 s override.
+    let mut s = start_with_stall(&text, dir.path(), None);
     for _ in 0..50 {
         s.step().unwrap();
     }
@@ -350,6 +357,15 @@ fn a_hung_process_halts_a_lockstep_run_within_the_stall_bound() {
         SessionError::Halted { tick, reason } => {
             assert_eq!(tick, 50);
             assert!(reason.contains("no progress") && reason.contains("plant"), "{reason}");
+            // The bound that halted it is the config's 300 ms (what the reason reports waiting,
+            // at most a few polls more), not a default of seconds.
+            let waited_ms: u64 = reason
+                .split("no progress for ")
+                .nth(1)
+                .and_then(|r| r.split(" ms").next())
+                .and_then(|n| n.parse().ok())
+                .unwrap_or_else(|| panic!("no wait in: {reason}"));
+            assert!((300..5_000).contains(&waited_ms), "{reason}");
         }
         e => panic!("{e}"),
     }

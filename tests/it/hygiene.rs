@@ -132,3 +132,99 @@ fn no_crate_declares_a_dependency_it_does_not_use() {
         unused.join("\n")
     );
 }
+
+/// A function longer than this many lines needs a stated reason (issue #40): a `// Long:`
+/// comment within the six lines above its `fn`.
+const LONG_FN_LINES: usize = 120;
+
+/// Whether `line` (trimmed) starts a function: `fn`, after any of `pub`, `pub(..)`, `const`,
+/// `async`, `unsafe`.
+fn starts_fn(line: &str) -> bool {
+    let mut t = line;
+    loop {
+        let before = t;
+        for kw in ["pub(crate) ", "pub(super) ", "pub ", "const ", "async ", "unsafe "] {
+            t = t.strip_prefix(kw).unwrap_or(t);
+        }
+        if t == before {
+            return t.starts_with("fn ");
+        }
+    }
+}
+
+/// `file:line: N lines` of every function over [`LONG_FN_LINES`] without a `// Long:` reason
+/// in `text`. rustfmt's layout is assumed: a body ends at a `}` line with the `fn`'s indent.
+fn long_functions(name: &str, text: &str) -> Vec<String> {
+    let lines: Vec<&str> = text.lines().collect();
+    let mut found = Vec::new();
+    for (i, l) in lines.iter().enumerate() {
+        let t = l.trim_start();
+        if !starts_fn(t) {
+            continue;
+        }
+        // The signature ends at the first line ending in `{` (a body) or `;` (a declaration).
+        let Some(sig_end) = lines[i..]
+            .iter()
+            .position(|x| x.trim_end().ends_with('{') || x.trim_end().ends_with(';') || x.trim_end().ends_with('}'))
+        else {
+            continue;
+        };
+        let sig = lines[i + sig_end].trim_end();
+        if !sig.ends_with('{') {
+            continue; // a declaration, or a body on one line
+        }
+        let close = format!("{}}}", &l[..l.len() - t.len()]);
+        let Some(end) = lines[i + sig_end..].iter().position(|x| *x == close) else {
+            continue;
+        };
+        let n = sig_end + end + 1;
+        let reason = lines[i.saturating_sub(6)..i].iter().any(|x| x.contains("// Long:"));
+        if n > LONG_FN_LINES && !reason {
+            found.push(format!("{name}:{}: {n} lines", i + 1));
+        }
+    }
+    found
+}
+
+#[test]
+fn the_long_function_check_counts_bodies_and_reads_reasons() {
+    let body = |n: usize| "    let x = 1;\n".repeat(n);
+    let long = format!("pub fn f(\n    a: u8,\n) -> u8 {{\n{}    a\n}}\n", body(LONG_FN_LINES));
+    assert_eq!(
+        long_functions("a.rs", &long),
+        vec![format!("a.rs:1: {} lines", LONG_FN_LINES + 5)]
+    );
+    let reasoned = format!("// Long: a list of checks.\n{long}");
+    assert!(long_functions("a.rs", &reasoned).is_empty());
+    let short = format!("fn g() {{\n{}}}\n", body(LONG_FN_LINES - 2));
+    assert!(long_functions("a.rs", &short).is_empty());
+    // Declarations and one-line bodies are not functions to measure.
+    assert!(long_functions("a.rs", "trait T {\n    fn h(&self)\n        -> u8;\n}\nfn k() { }\n").is_empty());
+}
+
+#[test]
+fn no_function_is_over_120_lines_without_a_stated_reason() {
+    let root = workspace_root();
+    let mut files = Vec::new();
+    for d in ["src", "components", "interfaces", "tests", "benches", "build.rs"] {
+        let p = root.join(d);
+        if p.is_file() {
+            files.push(p);
+        } else {
+            rust_files(&p, &mut files);
+        }
+    }
+    files.retain(|f| !f.components().any(|c| c.as_os_str() == "target"));
+    let mut found = Vec::new();
+    for f in &files {
+        let text = std::fs::read_to_string(f).unwrap();
+        let name = f.strip_prefix(&root).unwrap_or(f).display().to_string();
+        found.extend(long_functions(&name, &text));
+    }
+    assert!(
+        found.is_empty(),
+        "functions over {LONG_FN_LINES} lines without a `// Long:` reason above them (split them, or say why \
+         not):\n{}",
+        found.join("\n")
+    );
+}

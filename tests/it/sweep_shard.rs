@@ -76,6 +76,7 @@ fn plan_json(args: &[&str]) -> serde_json::Value {
 }
 
 #[test]
+// Long: one scenario end to end; its steps depend on each other's files.
 fn four_shards_merge_into_the_local_sweep_byte_for_byte_and_a_killed_shard_is_redone() {
     let tmp = tempfile::tempdir().unwrap();
     let data = synthetic_dir(&tmp.path().join("data"), 900, 11);

@@ -46,6 +46,7 @@ fn steps(v: &serde_json::Value) -> Vec<(String, String)> {
 }
 
 #[test]
+// Long: one scenario end to end (run, resume, report, merge); its steps depend on each other's files.
 fn quick_transfer_runs_resumes_and_reports() {
     let shm_before = shm_files(&["bcol", "bev"]);
     let tmp = tempfile::tempdir().unwrap();
@@ -224,6 +225,25 @@ fn quick_transfer_runs_resumes_and_reports() {
             .any(|l| l.starts_with("forward ") && l.contains(&quoted) && l.contains("by train's definition")),
         "{quoted} in:\n{tune_log}"
     );
+    // ... and the margin its choice won by, in the log and in tune.json (#43 item 3).
+    let tune_json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(unit_dir.join("controller.tune.json")).unwrap()).unwrap();
+    let margins = &tune_json["margins"];
+    if tune_json["chosen"].is_u64() {
+        let runner_up = margins["runner_up_margin_deg"].as_f64().unwrap();
+        assert!(runner_up.is_finite(), "{margins}");
+        assert!(
+            tune_log
+                .lines()
+                .any(|l| l.starts_with("chose ") && l.contains("runner-up")),
+            "{tune_log}"
+        );
+    } else {
+        assert!(
+            tune_log.lines().any(|l| l.starts_with("chose uncalibrated")),
+            "{tune_log}"
+        );
+    }
     assert!(!controller.contains("model_fwd = \"models/lstm"), "{controller}");
     assert!(first.iter().all(|(_, st)| st == "ran"), "{first:?}");
     for (s, _) in &first {

@@ -549,6 +549,7 @@ fn holdout_rows(cfg: &AdaptConfig) -> usize {
 impl Job {
     /// Rates the forward model in use on the held-out newest rows; when stale, fine-tunes and
     /// validates. Deterministic; heavy (seconds): run it off any real-time loop.
+    // Long: the adaptation cycle's states (gather, check staleness, fine-tune, validate, write a generation) in one place so their order is readable.
     pub fn run(self) -> JobResult {
         let n = self.rows.len();
         let j = self.fwd.spec.joints;

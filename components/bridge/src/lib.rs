@@ -315,6 +315,7 @@ pub fn bridge_ports(params: &toml::Table) -> Result<ParamPorts, ParamPortsError>
 }
 
 impl BridgeStage {
+    // Long: the bridge's ports, Zenoh session and peer liveliness opened in the order they depend on each other.
     pub fn from_env(env: &StageEnv<'_>) -> Result<Self, StageBuildError> {
         let params: BridgeParams = env.params()?;
         params

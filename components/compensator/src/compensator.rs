@@ -756,6 +756,7 @@ impl Compensator {
         self.step_inner(q_desired_deg, Some(correction_deg), out)
     }
 
+    // Long: the real-time step in the order it runs (checks, history, refinement, safe choice, output limits, prediction), allocation-free; its bytes are `bowden evaluate`'s, and a split would scatter that order across calls on the hot path.
     fn step_inner(
         &mut self,
         q_desired_deg: &[f64],

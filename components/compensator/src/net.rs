@@ -1700,6 +1700,7 @@ mod tests {
 
     /// Independent reference: every column of every node over the whole window, in f64,
     /// straight from the definitions (explicit zero padding, no prefix/trial split).
+    // Long: the reference (full-window) forward pass of every architecture, written out plainly to check the incremental evaluators against.
     fn reference(net: &Net, window: &[f64]) -> Vec<f64> {
         let (l, j) = (net.seq_len, net.joints);
         let mut vals: Vec<Vec<Vec<f64>>> = Vec::new(); // node → column (or [vector]) → channel

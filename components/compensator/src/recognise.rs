@@ -602,6 +602,7 @@ impl Walker<'_> {
         Ok(())
     }
 
+    // Long: one pattern match over the ONNX einsum equations PyTorch emits for the LSTM, each case a few lines.
     fn einsum(&mut self, id: usize, e: &EinSum) -> R<()> {
         let node = self.model.node(id);
         if e.q_params.is_some() || node.inputs.len() != 2 || e.operating_dt != f32::datum_type() {

@@ -312,6 +312,7 @@ fn probe_singular(a: &[f64], trace: f64, j: usize) -> bool {
 /// estimate on entry and the best candidate on return (every accepted step lowers ‖loss‖², so
 /// the current point is the best); `pred` the prediction there. `project` maps a candidate
 /// into the admissible set (joint limits).
+// Long: one regularised Gauss–Newton solve with its line search and stopping rules, allocation-free on the real-time path.
 pub fn newton_refine<M: WindowModel + ?Sized>(
     fwd: &mut M,
     q_desired: &[f64],

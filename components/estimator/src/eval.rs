@@ -148,6 +148,7 @@ pub enum EvalError {
 }
 
 /// Runs the evaluation. `progress` is called after each frame with the number done.
+// Long: the evaluation loop with its accumulators (per marker, per joint, timing) in one pass.
 pub fn run_eval(
     estimator: &mut Estimator,
     camera: &mut SyntheticCamera,

@@ -823,6 +823,7 @@ impl Estimator {
         Some(t)
     }
 
+    // Long: the frame → joints pipeline stages (frames, IK, gates) in the order of the paper's section III.
     fn estimate_joints(&mut self, hint: Option<JointsDeg>, ms: &mut MarkerSet, je: &mut JointEstimate) {
         let Some(cam_base) = self.base_frame(ms) else {
             return;
@@ -952,6 +953,7 @@ impl Estimator {
 
     /// Joint-space fit from the best available start; leave-one-out when the jaw spheres
     /// disagree with the model. Returns the configuration and the mask of determined joints.
+    // Long: one iterative refinement with its stopping rules, allocation-free on the real-time path.
     fn refine(
         &mut self,
         hint: Option<JointsDeg>,

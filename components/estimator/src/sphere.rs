@@ -399,6 +399,7 @@ fn sin_from_cos(c: f64) -> f64 {
 /// Fits the silhouette cone to edge rays `edges` (unit vectors). `inlier_rad` is the
 /// angular inlier threshold; edge positions are quantised to half a pixel, so about one
 /// pixel's angle.
+// Long: one RANSAC sphere fit with its inlier refinement, allocation-free on the real-time path.
 pub fn fit_silhouette(
     edges: &[Vector3<f64>],
     inlier_rad: f64,

@@ -210,6 +210,7 @@ const VIEWS: [View; 3] = [
 
 /// Fig. 12 of one trajectory (see the module docs): `fig12_<trajectory>.svg` in `dir`, or
 /// nothing when no run of it has a repeat 0.
+// Long: one figure of the paper (Fig. 12) drawn panel by panel.
 pub fn fig12(robot: &Robot, runs: &[RunRecord], trajectory: &str, dir: &Path) -> Result<Option<PathBuf>, EvalError> {
     let sel = repeat0(runs, trajectory);
     if sel.is_empty() {

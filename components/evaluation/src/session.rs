@@ -280,6 +280,7 @@ fn t_s(p: &PointRecord) -> f64 {
 ///   the onset and is not lap 0, else the last window.
 ///
 /// Only the trajectories' points are scored; the moves joining them are tracked but left out.
+// Long: the session's windows, stretches and summary computed in one pass over the recorded points.
 pub fn analyse(
     robot: &Robot,
     plan: &SessionPlan,
@@ -649,6 +650,7 @@ pub fn markdown(s: &SessionSummary, header: &str) -> String {
 /// Writes `session.md`, `session.json` (summary, windows and every point with its time) and
 /// the plots `session_error.svg` (tip position error by truth per window, per controller) and
 /// `session_gain.svg` (the calibrated controllers' gain per window) into `dir`.
+// Long: one report: table, plots and JSON written in order.
 pub fn write(
     s: &SessionSummary,
     plan: &SessionPlan,

@@ -120,6 +120,7 @@ impl RobotConfig {
     /// Long by design (over 120 lines): one check per field, in the file's order, so every
     /// rule of the schema is in one place beside its struct; each check is a few lines and
     /// shares nothing with the next, so helpers would only scatter the schema.
+    // Long: one flat list of independent checks, each naming its field.
     fn validate(&self, path: &Path) -> Result<(), ConfigError> {
         let bad = |field: &str, problem: String| ConfigError::Invalid {
             origin: path.display().to_string(),

@@ -206,6 +206,7 @@ impl ModelFile {
     }
 
     /// The ONNX model.
+    // Long: the ONNX graph written node by node in the order PyTorch exports it, so the two files can be compared side by side.
     pub fn to_proto(&self) -> pb::ModelProto {
         let spec = self.spec;
         let (l, j) = (spec.seq_len, spec.joints);
@@ -400,6 +401,7 @@ impl ModelFile {
         Self::from_proto(&proto, path)
     }
 
+    // Long: the ONNX graph read node by node, mirroring `to_proto`.
     pub fn from_proto(proto: &pb::ModelProto, path: &Path) -> Result<Self, OnnxError> {
         let bad = |what: String| OnnxError::Contract {
             path: path.to_path_buf(),

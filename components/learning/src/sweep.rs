@@ -543,6 +543,7 @@ pub struct ExecReport {
 
 /// Trains the runs of `selection` that `out_dir/runs` lacks (or holds only half-written or
 /// from another sweep), `jobs` at once, each result written atomically; keeps the others.
+// Long: the sweep's runs with their resume checks, progress and run files in one loop.
 pub fn execute_runs(
     plan: &SweepPlan,
     ds: &Dataset,

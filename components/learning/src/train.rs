@@ -555,6 +555,7 @@ fn check_fits(data: &WindowSet, cfg: &TrainConfig, init: &ModelFile) -> Result<(
     Ok(())
 }
 
+// Long: the training loop (epochs, batches, validation, early stop, best weights) as one readable loop.
 fn train_from(
     data: &WindowSet,
     cfg: &TrainConfig,

@@ -196,6 +196,7 @@ impl WindowSet {
         Self::build_split(ds, direction, seq_len, None, phy)
     }
 
+    // Long: windows, normalisation and the split built together so every window's statistics come from its own side of the split.
     fn build_split(
         ds: &Dataset,
         direction: Direction,

@@ -19,7 +19,7 @@ use bowden_kinematics::{JointsDeg, Robot, JOINT_NAMES, N_JOINTS};
 use bowden_trajectory::dataset_commands;
 
 use crate::config::PlantConfig;
-use crate::plant::{Plant, PlantError};
+use crate::plant::{Plant, PlantBuildError, PlantError};
 
 /// Table IV of the paper: (MAE, SD) per joint, degrees.
 pub const PAPER_TABLE_IV: [(f64, f64); N_JOINTS] = [
@@ -33,6 +33,16 @@ pub const PAPER_TABLE_IV: [(f64, f64); N_JOINTS] = [
 /// The range the simulated plant must reproduce on every joint: MAE 10–16°, SD 7–11°.
 pub const TARGET_MAE_DEG: (f64, f64) = (10.0, 16.0);
 pub const TARGET_SD_DEG: (f64, f64) = (7.0, 11.0);
+
+/// Why [`characterize`] (or [`joint_reach_deg`]) stopped: the plant could not be built for the
+/// requested unit, or it refused a command.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CharacterizeError {
+    #[error(transparent)]
+    Build(#[from] PlantBuildError),
+    #[error(transparent)]
+    Step(#[from] PlantError),
+}
 
 /// How to run the protocol.
 #[derive(Debug, Clone, Serialize)]
@@ -135,9 +145,9 @@ pub fn characterize(
     config: &PlantConfig,
     options: &CharacterizeOptions,
     progress: &mut dyn FnMut(usize, usize),
-) -> Result<Characterization, PlantError> {
+) -> Result<Characterization, CharacterizeError> {
     let commands = dataset_commands(robot, options.n_configs, options.dataset_seed);
-    let mut plant = Plant::new(robot, config, options.plant_seed);
+    let mut plant = Plant::try_new(robot, config, options.plant_seed)?;
     let mut q_phy = Vec::with_capacity(commands.len());
     for (k, q_cmd) in commands.iter().enumerate() {
         plant.settle_joints(q_cmd, options.pause_s, options.dt_s)?;
@@ -162,11 +172,11 @@ pub fn joint_reach_deg(
     plant_seed: u64,
     pause_s: f64,
     dt_s: f64,
-) -> Result<[(f64, f64); N_JOINTS], PlantError> {
+) -> Result<[(f64, f64); N_JOINTS], CharacterizeError> {
     let lim = &robot.config.limits;
     let mut out = [(0.0, 0.0); N_JOINTS];
     for (j, r) in out.iter_mut().enumerate() {
-        let mut plant = Plant::new(robot, config, plant_seed);
+        let mut plant = Plant::try_new(robot, config, plant_seed)?;
         let mut q = [0.0; N_JOINTS];
         match j {
             3 => q[4] = lim.q_max_deg[4],

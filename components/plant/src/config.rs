@@ -2,16 +2,19 @@
 //! validated on load. A second robot (another sheath routing, other cables) is another file.
 //!
 //! The top-level `family` key picks the hysteresis model (see [`FamilyKind`]); each family has
-//! its own table (`[hysteresis]` for `capstan`, `[bouc_wen]`, `[lugre]`), required when that
-//! family is selected and refused otherwise. The other tables describe the drive and the joints
-//! and are shared: every family reads `[joints]`, `[cables]`, `[dynamics]`, `[drift]`,
-//! `[variation]` and `[command]`; `[sheath]` and `[body]` set the friction of the cable-space
-//! families (`bouc-wen` reads only `sheath.length_mm`, for the cables' compliance).
+//! its own table (`[hysteresis]` for `capstan`, `[bouc_wen]`, `[lugre]`, `[preisach]`),
+//! required when that family is selected and refused otherwise. The other tables describe the
+//! drive and the joints and are shared: every family reads `[joints]`, `[cables]`,
+//! `[dynamics]`, `[drift]`, `[variation]` and `[command]`; `[sheath]` and `[body]` set the
+//! friction of the cable-space families (`bouc-wen` and `preisach` read only
+//! `sheath.length_mm`, for the cables' compliance).
 
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 use bowden_kinematics::{N_CABLES, N_JOINTS};
+
+use crate::families::preisach;
 
 /// Largest number of play operators per cable (the state is a fixed array: no allocation).
 pub const MAX_PLAYS: usize = 16;
@@ -93,6 +96,10 @@ pub enum FamilyKind {
     BoucWen,
     /// Cable space, rate-dependent: LuGre friction on an elastic cable per cable (`[lugre]`).
     Lugre,
+    /// Joint space, rate-dependent: a bounded friction lag per joint from a classical Preisach
+    /// relay grid on the contacts' load (lognormal × split-normal density), gross sliding and a
+    /// delayed slip (`[preisach]`).
+    Preisach,
 }
 
 impl FamilyKind {
@@ -107,6 +114,7 @@ impl FamilyKind {
             FamilyKind::Capstan => "hysteresis",
             FamilyKind::BoucWen => "bouc_wen",
             FamilyKind::Lugre => "lugre",
+            FamilyKind::Preisach => "preisach",
         }
     }
 }
@@ -151,6 +159,43 @@ pub struct LugreConfig {
     /// Free play (backlash) of each cable pair at its distal termination, mm of pair difference
     /// (full width), per joint.
     pub free_play_mm: [f64; N_JOINTS],
+}
+
+/// `[preisach]`: a friction lag per joint, in joint space (see `families::preisach`): a
+/// population of stick–slip contacts, each a Preisach relay γ_αβ (α ≥ β) on the load the
+/// contacts hold back, on a 16 × 16 triangular grid spanning loads of ±X, X =
+/// `lag_amplitude_deg` + `presliding_deg`, weighted by a density that is lognormal in the
+/// coercivity h_c = (α − β)/2 and split-normal in the interaction h_u = (α + β)/2. At a load of
+/// ±X every contact has let go and the cable slides through (a play of half-width X); the joint
+/// is where the cable has slid to plus the pre-sliding travel L·(Σ w·γ − its assembled value):
+/// it lags its command by at most `lag_amplitude_deg` (plus L times the assembled offset) and
+/// follows it over its whole range. The contacts feel the command through a standard linear
+/// solid: a share `relaxation_fraction` of every change arrives only with the time constant
+/// `relaxation_time_s` (delayed slip).
+#[derive(Debug, Clone, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PreisachConfig {
+    /// G: the lag once every contact slips (the joint behind a command that has moved on by
+    /// more than 2X in one direction), deg.
+    pub lag_amplitude_deg: [f64; N_JOINTS],
+    /// L: half the joint's travel while its contacts let go (the rest of a reversal's 2X of
+    /// command it stands), deg. Validation requires L·b ≤ 1, b the density's steepest
+    /// breakaway rate per deg of load, so that the joint never outruns its command.
+    pub presliding_deg: [f64; N_JOINTS],
+    /// Median of the lognormal coercivity (half a contact's own dead band), deg of load.
+    pub coercivity_median_deg: [f64; N_JOINTS],
+    /// Standard deviation of ln(coercivity): the spread of the friction levels.
+    pub coercivity_log_sd: f64,
+    /// Width of the interaction density above its mode (zero load), deg.
+    pub interaction_sd_positive_deg: [f64; N_JOINTS],
+    /// Width of the interaction density below its mode, deg (≠ the positive one: skewed,
+    /// asymmetric branches).
+    pub interaction_sd_negative_deg: [f64; N_JOINTS],
+    /// κ: share of a command change the contacts feel only after the relaxation, in [0, 1)
+    /// (0: rate-independent).
+    pub relaxation_fraction: f64,
+    /// τ of the relaxation (the sheath liner's standard linear solid), s.
+    pub relaxation_time_s: f64,
 }
 
 /// Rate-independent hysteresis per cable: a generalised Prandtl–Ishlinskii operator.
@@ -230,6 +275,45 @@ impl DriftConfig {
         let creep = self.creeps().then_some(self.start_s);
         self.slip.iter().map(|s| s.at_s).chain(creep).reduce(f64::min)
     }
+
+    /// What this drift does, for reports: the moments to mark (what, simulated time s) and
+    /// one line ("creep w1 6 mm/h from 120 s, up to 2 mm (reached at 1320 s); w3 slips ...").
+    /// `cable_name(i)` names cable i (0-based).
+    pub fn describe(&self, cable_name: impl Fn(usize) -> String) -> (Vec<(String, f64)>, String) {
+        let mut marks = Vec::new();
+        let mut parts = Vec::new();
+        let creeping: Vec<usize> = (0..self.rate_mm_per_hour.len())
+            .filter(|&i| self.rate_mm_per_hour[i] > 0.0 && self.max_mm > 0.0)
+            .collect();
+        if !creeping.is_empty() {
+            let rates: Vec<String> = creeping
+                .iter()
+                .map(|&i| format!("{} {} mm/h", cable_name(i), self.rate_mm_per_hour[i]))
+                .collect();
+            let fastest = creeping.iter().map(|&i| self.rate_mm_per_hour[i]).fold(0.0, f64::max);
+            let full_s = self.start_s + 3600.0 * self.max_mm / fastest;
+            parts.push(format!(
+                "creep {} from {:.0} s, up to {} mm (reached at {:.0} s)",
+                rates.join(", "),
+                self.start_s,
+                self.max_mm,
+                full_s
+            ));
+            marks.push((format!("creep starts ({:.0} s)", self.start_s), self.start_s));
+            marks.push((format!("creep reaches {} mm ({full_s:.0} s)", self.max_mm), full_s));
+        }
+        for sl in &self.slip {
+            let what = format!("{} slips {} mm at {:.0} s", cable_name(sl.cable - 1), sl.mm, sl.at_s);
+            marks.push((what.clone(), sl.at_s));
+            parts.push(what);
+        }
+        let description = if parts.is_empty() {
+            "no creep, no slip".into()
+        } else {
+            parts.join("; ")
+        };
+        (marks, description)
+    }
 }
 
 /// Seeded manufacturing variation: every plant instance (seed) is a slightly different robot.
@@ -239,7 +323,9 @@ pub struct VariationConfig {
     /// Relative standard deviation (truncated at ±3σ) applied to each cable's stiffness,
     /// pre-tension and sheath wrap and to each joint's stiffness, and to the family's own
     /// parameters (`bouc-wen`: each joint's two widths and its widening; `lugre`: each cable's
-    /// bristle stiffness and damping and viscous friction, each pair's free play).
+    /// bristle stiffness and damping and viscous friction, each pair's free play; `preisach`:
+    /// each joint's lag amplitude, pre-sliding travel, coercivity median, two interaction widths
+    /// and relaxation time).
     pub relative_sd: f64,
     /// Which manufactured unit this file describes: the seed of its variation. A robot is one
     /// unit: its dataset is collected on it and its controller evaluated on it, whatever the
@@ -285,6 +371,9 @@ pub struct PlantConfig {
     /// `[lugre]`: required when `family = "lugre"`, refused otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lugre: Option<LugreConfig>,
+    /// `[preisach]`: required when `family = "preisach"`, refused otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub preisach: Option<PreisachConfig>,
     pub dynamics: DynamicsConfig,
     pub drift: DriftConfig,
     pub variation: VariationConfig,
@@ -330,6 +419,7 @@ impl PlantConfig {
     /// Long by design (over 120 lines): one check per field, in the file's order, so every
     /// rule of the schema is in one place beside its struct; each check is a few lines and
     /// shares nothing with the next, so helpers would only scatter the schema.
+    // Long: one flat list of independent checks, each naming its field.
     pub fn validate(&self, path: &Path) -> Result<(), ConfigError> {
         let bad = |field: String, problem: String| ConfigError::Invalid {
             origin: path.display().to_string(),
@@ -468,6 +558,7 @@ impl PlantConfig {
     /// Long by design (over 120 lines): one check per field, in the file's order, so every
     /// rule of the schema is in one place beside its struct; each check is a few lines and
     /// shares nothing with the next, so helpers would only scatter the schema.
+    // Long: one flat list of independent checks per family table, each naming its field.
     fn validate_family(&self, path: &Path) -> Result<(), ConfigError> {
         let bad = |field: String, problem: String| ConfigError::Invalid {
             origin: path.display().to_string(),
@@ -486,6 +577,7 @@ impl PlantConfig {
             (FamilyKind::Capstan, self.hysteresis.is_some()),
             (FamilyKind::BoucWen, self.bouc_wen.is_some()),
             (FamilyKind::Lugre, self.lugre.is_some()),
+            (FamilyKind::Preisach, self.preisach.is_some()),
         ];
         for (kind, is_present) in present {
             if kind == family && !is_present {
@@ -595,6 +687,91 @@ impl PlantConfig {
                     (0.0..=10.0).contains(&b),
                     "in [0, 10] mm",
                 )?;
+            }
+        }
+        if let Some(p) = &self.preisach {
+            for k in 0..N_JOINTS {
+                let g = p.lag_amplitude_deg[k];
+                check(
+                    format!("preisach.lag_amplitude_deg[{k}]"),
+                    g,
+                    (0.1..=90.0).contains(&g),
+                    "in [0.1, 90] deg",
+                )?;
+                let l = p.presliding_deg[k];
+                check(
+                    format!("preisach.presliding_deg[{k}]"),
+                    l,
+                    l > 0.0 && l <= 90.0,
+                    "in (0, 90] deg",
+                )?;
+                // The density must live on the grid (loads in ±X): a median contact whose own
+                // loop (2·h_c) does not fit, or an interaction wider than the range, would put
+                // most of the population where no load reaches it.
+                let x = g + l;
+                let m = p.coercivity_median_deg[k];
+                check(
+                    format!("preisach.coercivity_median_deg[{k}]"),
+                    m,
+                    m >= 0.01 && m <= x,
+                    &format!(
+                        "in [0.01, X = preisach.lag_amplitude_deg[{k}] + presliding_deg[{k}] = {x}] deg (the median contact's loop must fit in the grid)"
+                    ),
+                )?;
+                for (name, sd) in [
+                    ("interaction_sd_positive_deg", p.interaction_sd_positive_deg[k]),
+                    ("interaction_sd_negative_deg", p.interaction_sd_negative_deg[k]),
+                ] {
+                    check(
+                        format!("preisach.{name}[{k}]"),
+                        sd,
+                        sd >= 0.1 && sd <= x,
+                        &format!("in [0.1, X = preisach.lag_amplitude_deg[{k}] + presliding_deg[{k}] = {x}] deg (a wider density lies mostly outside the grid)"),
+                    )?;
+                }
+            }
+            check(
+                "preisach.coercivity_log_sd".into(),
+                p.coercivity_log_sd,
+                (0.05..=2.0).contains(&p.coercivity_log_sd),
+                "in [0.05, 2] (the lognormal's spread of ln h_c)",
+            )?;
+            check(
+                "preisach.relaxation_fraction".into(),
+                p.relaxation_fraction,
+                (0.0..1.0).contains(&p.relaxation_fraction),
+                "in [0, 1) (0 = rate-independent; 1 would leave the contacts nothing at once)",
+            )?;
+            check(
+                "preisach.relaxation_time_s".into(),
+                p.relaxation_time_s,
+                p.relaxation_time_s > 0.0 && p.relaxation_time_s <= 60.0,
+                "in (0, 60] s",
+            )?;
+            // Never faster than the command: L·b ≤ 1 for the file's density, and for the unit
+            // the file names (its varied density; a unit picked per run is checked when its
+            // plant is built, `Plant::try_new`).
+            for k in 0..N_JOINTS {
+                let l = p.presliding_deg[k];
+                let b = preisach::nominal_breakaway_rate(p, k);
+                if (l * b).is_nan() || l * b > 1.0 {
+                    return Err(bad(
+                        format!("preisach.presliding_deg[{k}]"),
+                        format!(
+                            "must be at most 1/b = {:.4} deg, got {l}: L·b = {:.4} > 1, b = {b:.6} per deg the steepest breakaway rate of the contact density (preisach.coercivity_median_deg, coercivity_log_sd, interaction_sd_positive_deg, interaction_sd_negative_deg), so that the joint never outruns its command where its contacts let go; lower presliding_deg[{k}] or spread the density",
+                            1.0 / b,
+                            l * b
+                        ),
+                    ));
+                }
+            }
+            if let Some(unit) = self.variation.unit {
+                if let Err(e) = crate::plant::preisach_unit(self, unit) {
+                    return Err(bad(
+                        format!("preisach.presliding_deg[{}]", e.joint),
+                        format!("unit {unit} (variation.unit): {e}"),
+                    ));
+                }
             }
         }
         Ok(())

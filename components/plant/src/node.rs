@@ -110,7 +110,7 @@ fn build(env: &StageEnv<'_>) -> Result<Box<dyn Stage>, StageBuildError> {
         Some(UnitChoice::Named(UnitName::RunSeed)) => run_seed,
         None => cfg.variation.unit_for_run(run_seed),
     };
-    let plant = Plant::new(&robot, &cfg, unit);
+    let plant = Plant::try_new(&robot, &cfg, unit).map_err(|e| env.error(e))?;
     // Before the first command the drive holds the straight pose.
     let w_mm = robot.cables().displacements_mm(&[0.0; 5]);
     Ok(Box::new(PlantStage {

@@ -4,8 +4,8 @@
 //! per-unit variation of the drive (cable stiffness, pre-tension, sheath wrap, joint
 //! stiffness: drawn first, in the same order for every family), the residual coupling, gains
 //! and offsets, contact and limits, the first-order settling and creep's slack; the
-//! `bouc-wen` and `lugre` families' own models are in [`crate::families`]. The default,
-//! `capstan`, is described here.
+//! `bouc-wen`, `lugre` and `preisach` families' own models are in [`crate::families`]. The
+//! default, `capstan`, is described here.
 //!
 //! One step of the capstan family, for a command u (mm pulled in at the drive unit, eq. 5 of
 //! q_cmd):
@@ -39,7 +39,7 @@ use bowden_kinematics::cables::CableError;
 use bowden_kinematics::{JointsDeg, Robot, N_CABLES, N_JOINTS};
 
 use crate::config::{FamilyKind, PlantConfig, MAX_PLAYS, MAX_SLIPS};
-use crate::families::{bouc_wen, lugre, pair_creep, Shared, BEND_JOINTS};
+use crate::families::{bouc_wen, lugre, pair_creep, preisach, Shared, BEND_JOINTS};
 use crate::hysteresis::{capstan_half_width_mm, capstan_mean_stretch_mm, play, threshold_scales};
 
 /// Fixed-point iterations per step at most, and the tolerance (rad) that stops them earlier.
@@ -93,7 +93,7 @@ struct State {
     tension_n: [f64; N_CABLES],
     t_sim_ns: u64,
     iterations: u32,
-    /// The state of the `bouc-wen` or `lugre` family (the capstan's is `z_mm`).
+    /// The state of the `bouc-wen`, `lugre` or `preisach` family (the capstan's is `z_mm`).
     family: FamilyState,
 }
 
@@ -106,6 +106,7 @@ enum FamilyState {
     Capstan,
     BoucWen(bouc_wen::State),
     Lugre(lugre::State),
+    Preisach(preisach::State),
 }
 
 /// Instance parameters of the selected family beyond the shared ones (one per plant, by value
@@ -116,6 +117,7 @@ enum Family {
     Capstan,
     BoucWen(bouc_wen::Params),
     Lugre(lugre::Params),
+    Preisach(preisach::Params),
 }
 
 /// What every family's step starts from: the checked command and the time it advances to.
@@ -185,33 +187,102 @@ pub struct Plant {
     initial: State,
 }
 
+/// A plant that cannot be built from its config and unit. [`Plant::try_new`] returns it,
+/// [`Plant::new`] panics with its message.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PlantBuildError {
+    #[error(
+        "plant config `{name}` selects family \"{family}\" without its [{table}] table (validate the config first)"
+    )]
+    MissingTable {
+        name: String,
+        family: &'static str,
+        table: &'static str,
+    },
+    #[error("plant config `{name}`, unit {unit}: {source}")]
+    Preisach {
+        name: String,
+        unit: u64,
+        #[source]
+        source: preisach::BreakawayBoundError,
+    },
+}
+
+/// The seeded manufacturing variation of unit `seed`: each call draws one relative factor
+/// 1 + sd·n, n standard normal truncated at ±3σ.
+fn unit_variation(seed: u64, sd: f64) -> impl FnMut() -> f64 {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    move || {
+        let n: f64 = rng.sample(StandardNormal);
+        1.0 + sd * n.clamp(-3.0, 3.0)
+    }
+}
+
+/// The drive's varied parameters, drawn first and in this order for every family.
+struct Drive {
+    compliance_mm_per_n: [f64; N_CABLES],
+    pretension_n: [f64; N_CABLES],
+    sheath_x: [f64; N_CABLES],
+    stiffness: [f64; N_JOINTS],
+}
+
+fn draw_drive(config: &PlantConfig, vary: &mut dyn FnMut() -> f64) -> Drive {
+    let mut compliance_mm_per_n = [0.0; N_CABLES];
+    let mut pretension_n = [0.0; N_CABLES];
+    let mut sheath_x = [0.0; N_CABLES];
+    for i in 0..N_CABLES {
+        let ea = config.cables.axial_stiffness_n[i] * vary();
+        compliance_mm_per_n[i] = config.sheath.length_mm / ea;
+        pretension_n[i] = config.cables.pretension_n[i] * vary();
+        sheath_x[i] = config.sheath.friction_coefficient * config.sheath.wrap_deg[i].to_radians() * vary();
+    }
+    let stiffness = core::array::from_fn(|j| config.joints.stiffness_nmm_per_rad[j] * vary());
+    Drive {
+        compliance_mm_per_n,
+        pretension_n,
+        sheath_x,
+        stiffness,
+    }
+}
+
+/// Whether unit `unit` of a `preisach` plant keeps every joint's L·b ≤ 1 after its variation
+/// (the same draws as [`Plant::try_new`]; for validating a file that names its unit). Ok for
+/// other families.
+pub(crate) fn preisach_unit(config: &PlantConfig, unit: u64) -> Result<(), preisach::BreakawayBoundError> {
+    let Some(pc) = &config.preisach else {
+        return Ok(());
+    };
+    let mut vary = unit_variation(unit, config.variation.relative_sd);
+    draw_drive(config, &mut vary);
+    preisach::Params::new(pc, Matrix5::zeros(), [0.0; N_JOINTS], &mut vary).map(|_| ())
+}
+
 impl Plant {
     /// A plant for `robot` with the parameters of `config`, varied per cable by the seeded
     /// manufacturing spread (`variation.relative_sd`). Same arguments → the same plant.
     ///
     /// # Panics
-    /// If `config` selects a family whose table is absent (a config that
-    /// [`PlantConfig::validate`] refuses; every loaded config is validated).
+    /// Where [`Self::try_new`] returns an error: if `config` selects a family whose table is
+    /// absent (a config that [`PlantConfig::validate`] refuses; every loaded config is
+    /// validated), or if unit `seed` of a `preisach` plant has a joint whose contacts would
+    /// outrun its command ([`preisach::BreakawayBoundError`]; validation checks the file's own
+    /// unit, so a unit picked per run is the only way to get there).
     pub fn new(robot: &Robot, config: &PlantConfig, seed: u64) -> Plant {
+        Self::try_new(robot, config, seed).unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    /// [`Self::new`], with what it would panic on as an error.
+    // Long: every derived parameter of one plant instance, in the order they depend on each other.
+    pub fn try_new(robot: &Robot, config: &PlantConfig, seed: u64) -> Result<Plant, PlantBuildError> {
         let cables = robot.cables();
         let pairs = *cables.pairs();
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let sd = config.variation.relative_sd;
-        let mut vary = move || {
-            let n: f64 = rng.sample(StandardNormal);
-            1.0 + sd * n.clamp(-3.0, 3.0)
-        };
-
-        let mut compliance_mm_per_n = [0.0; N_CABLES];
-        let mut pretension_n = [0.0; N_CABLES];
-        let mut sheath_x = [0.0; N_CABLES];
-        for i in 0..N_CABLES {
-            let ea = config.cables.axial_stiffness_n[i] * vary();
-            compliance_mm_per_n[i] = config.sheath.length_mm / ea;
-            pretension_n[i] = config.cables.pretension_n[i] * vary();
-            sheath_x[i] = config.sheath.friction_coefficient * config.sheath.wrap_deg[i].to_radians() * vary();
-        }
-        let stiffness: [f64; N_JOINTS] = core::array::from_fn(|j| config.joints.stiffness_nmm_per_rad[j] * vary());
+        let mut vary = unit_variation(seed, config.variation.relative_sd);
+        let Drive {
+            compliance_mm_per_n,
+            pretension_n,
+            sheath_x,
+            stiffness,
+        } = draw_drive(config, &mut vary);
 
         // Pair-difference Jacobian of eq. (5) at the straight pose (mm/rad), by central differences.
         let delta_deg = 0.01;
@@ -319,24 +390,21 @@ impl Plant {
         // The other families' parameters, drawn after the shared ones (so the capstan plant's
         // draws, and hence its instances, are what they always were).
         let jac_inv = jac.try_inverse().unwrap_or_else(Matrix5::zeros);
-        let missing = |kind: FamilyKind| -> ! {
-            panic!(
-                "plant config `{}` selects family \"{}\" without its [{}] table (validate the config first)",
-                config.name,
-                kind.as_str(),
-                kind.table()
-            )
+        let missing = |kind: FamilyKind| PlantBuildError::MissingTable {
+            name: config.name.clone(),
+            family: kind.as_str(),
+            table: kind.table(),
         };
         let (family, family_state) = match config.family {
             FamilyKind::Capstan => {
                 if config.hysteresis.is_none() {
-                    missing(FamilyKind::Capstan);
+                    return Err(missing(FamilyKind::Capstan));
                 }
                 (Family::Capstan, FamilyState::Capstan)
             }
             FamilyKind::BoucWen => {
                 let Some(bw) = &config.bouc_wen else {
-                    missing(FamilyKind::BoucWen)
+                    return Err(missing(FamilyKind::BoucWen));
                 };
                 // Stretch of the pairs under the joint stiffness: q_h = q_e + J0⁻¹·Cp·Tm·q_e.
                 let mut cp = Matrix5::<f64>::zeros();
@@ -355,7 +423,7 @@ impl Plant {
             }
             FamilyKind::Lugre => {
                 let Some(lg) = &config.lugre else {
-                    missing(FamilyKind::Lugre)
+                    return Err(missing(FamilyKind::Lugre));
                 };
                 let shared = Shared {
                     compliance_mm_per_n: &compliance_mm_per_n,
@@ -374,6 +442,21 @@ impl Plant {
                 let params = lugre::Params::new(lg, &shared, &mut vary);
                 let st = params.relaxed(&zero);
                 (Family::Lugre(params), FamilyState::Lugre(st))
+            }
+            FamilyKind::Preisach => {
+                let Some(pc) = &config.preisach else {
+                    return Err(missing(FamilyKind::Preisach));
+                };
+                let lever_mm = core::array::from_fn(|k| jac[(k, k)]);
+                let params = preisach::Params::new(pc, jac_inv, lever_mm, &mut vary).map_err(|source| {
+                    PlantBuildError::Preisach {
+                        name: config.name.clone(),
+                        unit: seed,
+                        source,
+                    }
+                })?;
+                let st = params.relaxed();
+                (Family::Preisach(params), FamilyState::Preisach(st))
             }
         };
 
@@ -400,7 +483,7 @@ impl Plant {
             iterations: 0,
             family: family_state,
         };
-        Plant {
+        Ok(Plant {
             robot: robot.clone(),
             config: config.clone(),
             seed,
@@ -430,7 +513,7 @@ impl Plant {
             family,
             state: initial,
             initial,
-        }
+        })
     }
 
     /// Advances the plant by `dt_s` under the cable command `cable_disp_mm` (mm pulled in at
@@ -453,6 +536,7 @@ impl Plant {
         let next = match (&self.family, &self.state.family) {
             (Family::BoucWen(p), FamilyState::BoucWen(st)) => self.next_bouc_wen(p, *st, &input),
             (Family::Lugre(p), FamilyState::Lugre(st)) => self.next_lugre(p, *st, &input),
+            (Family::Preisach(p), FamilyState::Preisach(st)) => self.next_preisach(p, *st, &input),
             (Family::Capstan, _) => self.next_capstan(&input),
             _ => unreachable!("a plant's state is always of its own family"),
         }?;
@@ -604,6 +688,62 @@ impl Plant {
         })
     }
 
+    /// The `preisach` family's step (see [`crate::families::preisach`]): joint command → free
+    /// play → delayed slip → contacts' load and relay grid per joint (a bounded lag) → creep
+    /// offset → coupling, gains, offsets.
+    fn next_preisach(
+        &self,
+        params: &preisach::Params,
+        mut pr: preisach::State,
+        input: &StepInput,
+    ) -> Result<QuasiStatic, PlantError> {
+        let (q_cmd_deg, slack_mm) = (input.q_cmd_deg, input.slack_mm);
+        let creep = pair_creep(&self.pairs, &self.compliance_mm_per_n, &self.pretension_n, slack_mm);
+        // As for bouc-wen: friction (every breakaway level, the slide level and the pre-sliding
+        // travel) scales with the remaining pre-tension, and the pair's slack is free play of
+        // half its width (as a joint angle) either way.
+        let contacts = preisach::Creep {
+            width_scale: creep.map(|c| c.tension_ratio),
+            play_deg: core::array::from_fn(|k| {
+                let lever = params.lever_mm[k].abs();
+                if lever > 0.0 {
+                    (0.5 * creep[k].excess_mm / lever).to_degrees()
+                } else {
+                    0.0
+                }
+            }),
+        };
+        let moved = params.advance(&mut pr, &q_cmd_deg, input.dt_s, &contacts);
+        // Creep moves the distal ends out: the joints shift by −J0⁻¹·(s_a − s_b).
+        let ds = Vector5::from(core::array::from_fn(|p| {
+            let (a, b) = self.pairs[p];
+            slack_mm[a] - slack_mm[b]
+        }));
+        let shift = params.jac_inv * ds;
+        let q_h = Vector5::from(core::array::from_fn(|k| moved.angle_deg[k].to_radians() - shift[k]));
+        let q_out = self.joint_map * q_h;
+        let q_rad: [f64; N_JOINTS] = core::array::from_fn(|k| q_out[k] + self.offset_rad[k]);
+
+        // What the cables do: their distal ends follow the joints, their tensions hold them
+        // against the joint stiffness.
+        let q_h_deg: JointsDeg = core::array::from_fn(|k| q_h[k].to_degrees());
+        let tip_mm = self.robot.cables().displacements_mm(&q_h_deg);
+        let delta_t = self.tension_matrix * q_h;
+        let tension_n = core::array::from_fn(|i| {
+            let p = self.pair_of[i];
+            (self.pretension_n[i] - creep[p].drop_n + self.pair_sign[i] * 0.5 * delta_t[p]).max(0.0)
+        });
+
+        Ok(QuasiStatic {
+            q_eq_rad: q_rad,
+            z_mm: self.state.z_mm,
+            tip_mm,
+            tension_n,
+            iterations: moved.passes,
+            family: FamilyState::Preisach(pr),
+        })
+    }
+
     /// Joint limits and jaw contact on the quasi-static angles `q_eq_rad`, then the first-order
     /// settling of q_phy toward them over `dt_s`: (q_qs, q_phy), deg.
     fn settle_toward(&self, q_eq_rad: &[f64; N_JOINTS], dt_s: f64) -> (JointsDeg, JointsDeg) {
@@ -694,7 +834,9 @@ impl Plant {
         (self.u_min_mm, self.u_max_mm)
     }
 
-    /// Fixed-point iterations the last step used (diagnostics and benchmarks).
+    /// Fixed-point iterations the last step used (diagnostics and benchmarks); for `bouc-wen`
+    /// its sub-steps, for `lugre` its friction sub-steps, for `preisach` its relay-grid passes
+    /// over all joints (0 when nothing moved).
     pub fn last_iterations(&self) -> u32 {
         self.state.iterations
     }

@@ -425,6 +425,7 @@ impl PipelineConfig {
     /// Long by design (over 120 lines): one check per field, in the file's order, so every
     /// rule of the schema is in one place beside its struct; each check is a few lines and
     /// shares nothing with the next, so helpers would only scatter the schema.
+    // Long: one flat list of independent checks, each naming its field; split, they would only be scattered.
     fn validate(
         file: PipelineFile,
         origin: ConfigOrigin,

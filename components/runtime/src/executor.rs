@@ -205,6 +205,7 @@ fn os_err(process: &str, what: &str, e: std::io::Error) -> ExecError {
 
 /// Runs process `process` of `cfg` until the launcher's shutdown tick or SIGINT/SIGTERM,
 /// building each of its stages with its kind's constructor from `kinds`.
+// Long: one process's life in order (set-up, real-time settings, the loop, status, shutdown); the loop is `Scheduler`'s.
 pub fn run_process(
     cfg: &PipelineConfig,
     process: &str,

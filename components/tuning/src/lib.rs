@@ -139,6 +139,95 @@ pub struct TuneReport {
     /// Index into `candidates`; None = uncalibrated (nothing beat it).
     pub chosen: Option<usize>,
     pub chosen_mode: String,
+    /// By how much the choice won (issue #43: a choice that wins by a hair on the validation
+    /// stretch says little about other paths).
+    pub margins: Margins,
+}
+
+/// The choice against its closest rivals, by judged RMSE (deg; positive: the choice is better).
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct Margins {
+    /// The best candidate other than the chosen one (index into `candidates`).
+    pub runner_up: Option<usize>,
+    /// runner-up's judged RMSE − the choice's; with nothing chosen, the best candidate's
+    /// judged RMSE − sending the targets unchanged (its judges' figure): how much it missed by.
+    pub runner_up_margin_deg: Option<f64>,
+    /// The best candidate of the other refinement mode (paper vs newton).
+    pub other_mode: Option<usize>,
+    pub other_mode_margin_deg: Option<f64>,
+    /// Sending the targets unchanged (under the choice's judges) − the choice's judged RMSE.
+    pub uncalibrated_margin_deg: Option<f64>,
+}
+
+impl TuneReport {
+    /// One line: what was chosen and by how much it won against the runner-up, the best of the
+    /// other mode and the targets unchanged (None without any candidate).
+    pub fn margin_line(&self) -> Option<String> {
+        let m = &self.margins;
+        let name = |k: usize| {
+            let c = &self.candidates[k];
+            format!(
+                "{}{} (forward {}, inverse {})",
+                c.mode,
+                c.prior_weight.map(|mu| format!(" μ {mu}")).unwrap_or_default(),
+                c.forward,
+                c.inverse
+            )
+        };
+        let Some(k) = self.chosen else {
+            let (b, d) = (m.runner_up?, m.runner_up_margin_deg?);
+            return Some(format!(
+                "chose uncalibrated: the best candidate, {}, was {d:+.3}° from beating the targets unchanged",
+                name(b)
+            ));
+        };
+        let judged = self.candidates[k].judged_rmse_deg;
+        let rel = |d: f64| if judged > 0.0 { 100.0 * d / judged } else { f64::NAN };
+        let mut line = format!("chose {}: judged RMSE {judged:.3}°", name(k));
+        if let (Some(u), Some(d)) = (m.runner_up, m.runner_up_margin_deg) {
+            line += &format!("; runner-up {} by {d:+.3}° ({:+.1} %)", name(u), rel(d));
+        }
+        if let (Some(o), Some(d)) = (m.other_mode, m.other_mode_margin_deg) {
+            line += &format!("; best of the other mode {} by {d:+.3}° ({:+.1} %)", name(o), rel(d));
+        }
+        if let Some(d) = m.uncalibrated_margin_deg {
+            line += &format!("; targets unchanged by {d:+.3}°");
+        }
+        Some(line)
+    }
+}
+
+/// [`Margins`] of choice `chosen` among `candidates`; `uncal[f]`: the judged error of sending
+/// the targets unchanged under forward model f's judges.
+pub fn margins(candidates: &[Candidate], chosen: Option<usize>, uncal: &[f64]) -> Margins {
+    let best_where = |keep: &dyn Fn(usize, &Candidate) -> bool| {
+        candidates
+            .iter()
+            .enumerate()
+            .filter(|(k, c)| c.judged_rmse_deg.is_finite() && keep(*k, c))
+            .min_by(|a, b| a.1.judged_rmse_deg.total_cmp(&b.1.judged_rmse_deg))
+            .map(|(k, _)| k)
+    };
+    let Some(ch) = chosen else {
+        let best = best_where(&|_, _| true);
+        return Margins {
+            runner_up: best,
+            runner_up_margin_deg: best
+                .map(|b| candidates[b].judged_rmse_deg - uncal.get(candidates[b].forward).copied().unwrap_or(f64::NAN)),
+            ..Margins::default()
+        };
+    };
+    let c = &candidates[ch];
+    let runner_up = best_where(&|k, _| k != ch);
+    let other_mode = best_where(&|_, o| o.mode != c.mode);
+    let margin = |k: Option<usize>| k.map(|k| candidates[k].judged_rmse_deg - c.judged_rmse_deg);
+    Margins {
+        runner_up,
+        runner_up_margin_deg: margin(runner_up),
+        other_mode,
+        other_mode_margin_deg: margin(other_mode),
+        uncalibrated_margin_deg: uncal.get(c.forward).map(|u| u - c.judged_rmse_deg),
+    }
 }
 
 /// The chosen settings: the controller config (models named by the paths given) and the report.
@@ -318,6 +407,7 @@ fn load(
 }
 
 /// Chooses the settings (see the crate docs). `progress(done, total)` after every candidate.
+// Long: the candidates are replayed and rated in one pass over the validation data; the loop body is the rating.
 pub fn tune(
     ds: &Dataset,
     forward: &[PathBuf],
@@ -523,6 +613,7 @@ pub fn tune(
         inverse: inv_scores,
         judge_only: judge_scores,
         judges,
+        margins: margins(&candidates, chosen, &uncal),
         uncalibrated_judged_rmse_deg: uncal,
         candidates,
         chosen,
@@ -639,4 +730,44 @@ fn name_of(p: &str) -> String {
         .file_name()
         .map(|f| f.to_string_lossy().into_owned())
         .unwrap_or_else(|| p.to_string())
+}
+
+#[cfg(test)]
+mod margin_tests {
+    use super::*;
+
+    fn cand(forward: usize, mode: &str, judged: f64) -> Candidate {
+        Candidate {
+            forward,
+            inverse: 0,
+            mode: mode.into(),
+            prior_weight: None,
+            judged_rmse_deg: judged,
+            self_rmse_deg: judged,
+            start_chosen: 0,
+            desired_chosen: 0,
+            safety_limited: 0,
+        }
+    }
+
+    #[test]
+    fn margins_name_the_runner_up_and_the_best_of_the_other_mode() {
+        let c = [
+            cand(0, "newton", 1.5),
+            cand(0, "paper", 1.8),
+            cand(1, "newton", 1.2),
+            cand(1, "paper", f64::NAN),
+        ];
+        let m = margins(&c, Some(2), &[4.0, 3.0]);
+        assert_eq!(m.runner_up, Some(0));
+        assert!((m.runner_up_margin_deg.unwrap() - 0.3).abs() < 1e-12);
+        assert_eq!(m.other_mode, Some(1), "the NaN candidate is no rival");
+        assert!((m.other_mode_margin_deg.unwrap() - 0.6).abs() < 1e-12);
+        assert!((m.uncalibrated_margin_deg.unwrap() - 1.8).abs() < 1e-12);
+        // Nothing chosen: how far the best candidate was from beating the targets unchanged.
+        let m = margins(&c, None, &[1.0, 1.0]);
+        assert_eq!(m.runner_up, Some(2));
+        assert!((m.runner_up_margin_deg.unwrap() - 0.2).abs() < 1e-12);
+        assert_eq!(m.other_mode, None);
+    }
 }

@@ -471,6 +471,7 @@ pub struct LstmGrads<'a> {
 #[allow(clippy::too_many_arguments)]
 /// Backward through time from dL/dh_T (`[b][H]`). Accumulates the parameter gradients;
 /// writes dL/dx into `work.dxt` when `want_dx`.
+// Long: the LSTM's backward pass through time as one kernel: gates, cell and hidden gradients of a step share registers and buffers.
 pub fn backward(
     d: &LstmDims,
     params: &[f32],

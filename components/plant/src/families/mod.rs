@@ -7,6 +7,7 @@
 
 pub mod bouc_wen;
 pub mod lugre;
+pub mod preisach;
 
 use bowden_kinematics::{N_CABLES, N_JOINTS};
 use nalgebra::Matrix5;

@@ -9,7 +9,7 @@ use common::state_bytes;
 /// The shipped plant of every hysteresis family: the checks below hold for each.
 fn every_family() -> Vec<PlantConfig> {
     let mut out = vec![PlantConfig::paper_default()];
-    for file in ["plant-boucwen.toml", "plant-lugre.toml"] {
+    for file in ["plant-boucwen.toml", "plant-lugre.toml", "plant-preisach.toml"] {
         out.push(PlantConfig::load(format!("{}/../../configs/{file}", env!("CARGO_MANIFEST_DIR"))).unwrap());
     }
     out

@@ -44,7 +44,7 @@ fn two_runs_give_identical_bytes() {
 fn every_family_is_deterministic_per_unit() {
     let robot = Robot::paper_default();
     let cmds = commands(&robot, 12, 5);
-    for file in ["plant-boucwen.toml", "plant-lugre.toml"] {
+    for file in ["plant-boucwen.toml", "plant-lugre.toml", "plant-preisach.toml"] {
         let config = PlantConfig::load(format!("{}/../../configs/{file}", env!("CARGO_MANIFEST_DIR"))).unwrap();
         let a = run_config(&config, 42, &cmds);
         assert_eq!(a, run_config(&config, 42, &cmds), "{file}: same seed, same bytes");

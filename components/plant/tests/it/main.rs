@@ -10,4 +10,5 @@ mod families;
 mod figures;
 mod no_alloc;
 mod physics;
+mod preisach;
 mod slack;

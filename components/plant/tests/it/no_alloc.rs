@@ -52,11 +52,12 @@ fn step_settle_and_errors_do_not_allocate() {
     real_time_path_does_not_allocate(&cfg);
 }
 
-/// The same for the other hysteresis families (configs/plant-boucwen.toml, plant-lugre.toml).
+/// The same for the other hysteresis families (configs/plant-boucwen.toml, plant-lugre.toml,
+/// plant-preisach.toml).
 #[test]
 fn every_family_steps_without_allocating() {
     use bowden_plant::PlantConfig;
-    for file in ["plant-boucwen.toml", "plant-lugre.toml"] {
+    for file in ["plant-boucwen.toml", "plant-lugre.toml", "plant-preisach.toml"] {
         let path = format!("{}/../../configs/{file}", env!("CARGO_MANIFEST_DIR"));
         let mut cfg = PlantConfig::load(&path).unwrap();
         cfg.drift.rate_mm_per_hour = [0.2; 10];

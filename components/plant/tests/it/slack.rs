@@ -15,10 +15,15 @@ fn config(file: &str) -> PlantConfig {
 }
 
 fn families() -> Vec<PlantConfig> {
-    ["plant.toml", "plant-boucwen.toml", "plant-lugre.toml"]
-        .iter()
-        .map(|f| config(f))
-        .collect()
+    [
+        "plant.toml",
+        "plant-boucwen.toml",
+        "plant-lugre.toml",
+        "plant-preisach.toml",
+    ]
+    .iter()
+    .map(|f| config(f))
+    .collect()
 }
 
 /// FNV-1a over every state the plant exposes after each of 40 eq. (16) commands held 0.5 s.

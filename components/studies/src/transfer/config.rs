@@ -189,6 +189,7 @@ pub(super) fn path_safe(s: &str) -> bool {
 }
 
 impl TransferConfig {
+    // Long: one flat list of independent checks, each naming its field.
     pub(super) fn validate(&self) -> std::result::Result<(), String> {
         let r = &self.recipe;
         if r.samples < 2 {

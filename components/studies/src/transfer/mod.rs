@@ -115,6 +115,7 @@ use results::*;
 use steps::*;
 
 /// Runs (or plans, or merges) a transfer study.
+// Long: the study's phases in order (set-up, plan, shard, run or merge, report), each a call.
 pub fn transfer(a: TransferOptions) -> Result<()> {
     if a.jobs == 0 {
         bail!("--jobs must be at least 1");
@@ -460,6 +461,7 @@ struct Selected<'a> {
 
 /// Runs the selected units, `jobs` at once, and leaves each one's outcome file beside its
 /// stamps. A shard prints what it did and returns `None`: the report is `--merge`'s.
+// Long: the parallel run of the units with its progress display and the outcome files, which share the threads' state.
 fn run_selected(
     a: &TransferOptions,
     ctx: &Ctx,

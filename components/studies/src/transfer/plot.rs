@@ -4,6 +4,7 @@ use super::*;
 
 /// Best mode's position reduction per family, one point per (unit, trajectory): truth filled,
 /// vision hollow; the legend sits beside the chart, off the data.
+// Long: one SVG figure: axes, series per family and legend drawn in order.
 pub(super) fn plot(path: &Path, rep: &Report, units: &[&UnitOutcome], which: &str) -> Result<()> {
     use plotters::prelude::*;
     use plotters::style::text_anchor::{HPos, Pos, VPos};

@@ -138,6 +138,7 @@ impl UnitRunner<'_> {
     /// unit's directory written `$UNIT`, `--threads` left out: results do not depend on it),
     /// `extra` (contents of input files) and the stamps of the `upstream` steps it reads, and
     /// its main product `outputs[0]` still exists. A (re)run first removes all `outputs`.
+    // Long: one stamped step: inputs hashed, skipped when unchanged, run as a subprocess, measured, stamped; the parts share the stamp's fields.
     pub(super) fn step(
         &mut self,
         step: &str,
@@ -482,6 +483,7 @@ pub(super) fn controller_from_base(base: &Path, fwd: &Path, inv: &Path, out: &Pa
     )
 }
 
+// Long: the steps of one unit in the order a user types them (collect, train, tune, evaluate, feedback, large paths), each a stamped subprocess.
 pub(super) fn run_unit(ctx: &Ctx, families: &[Family], plan: &UnitPlan, bar: &ProgressBar) -> UnitOutcome {
     let fam = &families[plan.family];
     let label = format!("{}/unit-{}", fam.name, plan.unit);
